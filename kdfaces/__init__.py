@@ -1,0 +1,18 @@
+"""kdfaces: kinodynamics (KD) and inverse kinodynamics (IKD) for blend-shape face rigs.
+
+Units are SI throughout: metres, seconds, kilograms. Arrays of vertex positions are (N, 3) or (T, N, 3).
+"""
+
+from .curves import KeyframeCurve
+from .errors import KDInputError, SimulationBlowUpError
+from .io.livelinkface import livelinkface_animation, read_livelinkface
+from .io.rigfiles import load_default_rig, load_rig, save_npz, save_obj_folder
+from .rig import BlendshapeRig, Skeleton
+from .skeleton import JointDrive, SkeletonAnimation
+from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+
+__all__ = [
+    "KeyframeCurve", "KDInputError", "SimulationBlowUpError", "livelinkface_animation", "read_livelinkface",
+    "load_default_rig", "load_rig", "save_npz", "save_obj_folder", "BlendshapeRig", "Skeleton", "JointDrive",
+    "SkeletonAnimation", "FaceAnimation", "KinematicTrajectory", "ShapeTrack",
+]

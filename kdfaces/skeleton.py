@@ -1,0 +1,136 @@
+"""Forward kinematics and linear blend skinning with analytic time derivatives.
+
+Kinematics lecture: a joint's world transform is the product of its ancestors' local transforms (FK), and a
+skinned vertex is v' = Σ_j w_ij P_j B_j⁻¹ v. Our rest pose has identity joint rotations, so P_j B_j⁻¹ is the
+product of local rotations about the rest pivots: L_j = T(p_j) R_j T(−p_j), G_j = G_parent(j) L_j.
+
+Each transform travels with its first and second time derivatives as a triplet (A, Ȧ, Ä); the product rule
+(AB)˙ = ȦB + AḂ, (AB)¨ = ÄB + 2ȦḂ + AB̈ carries them through the chain, so ẋ_K and ẍ_K are exact.
+
+Angles are (yaw, pitch, roll) [rad] about the rig's (y, x, z) axes (y up, face looking +z): R = R_y R_x R_z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .curves import KeyframeCurve
+from .errors import KDInputError
+from .rig import Skeleton
+
+__all__ = ["JointDrive", "SkeletonAnimation", "HEAD_CHAIN_SPLIT", "joint_transforms", "skin"]
+
+#: How a whole-head rotation is shared by the neck chain (fractions sum to one).
+HEAD_CHAIN_SPLIT = {"neck01": 0.15, "neck02": 0.15, "neck03": 0.2, "head": 0.5}
+
+_AXES = (1, 0, 2)  # yaw about y, pitch about x, roll about z
+
+
+def _axis_rotation(axis: int, th, dth, ddth):
+    """R(θ(t)) about a coordinate axis and its first and second time derivatives, each (T, 3, 3)."""
+    T = len(th)
+    K = np.zeros((3, 3))
+    a, b = [(1, 2), (2, 0), (0, 1)][axis]
+    K[b, a], K[a, b] = 1.0, -1.0  # skew matrix of the unit axis
+    K2 = K @ K
+    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
+    R = np.eye(3) + s * K + (1 - c) * K2
+    R_th = c * K + s * K2
+    R_thth = -s * K + c * K2
+    dth, ddth = dth[:, None, None], ddth[:, None, None]
+    assert R.shape == (T, 3, 3)
+    return R, R_th * dth, R_thth * dth**2 + R_th * ddth
+
+
+def _mul(A, B):
+    """Product of two derivative triplets of (…, n, n) matrices."""
+    a, da, dda = A
+    b, db, ddb = B
+    return a @ b, da @ b + a @ db, dda @ b + 2 * (da @ db) + a @ ddb
+
+
+@dataclass(frozen=True)
+class JointDrive:
+    """One 3-channel curve (yaw, pitch, roll) [rad] driving joints with fixed shares ``{joint: fraction}``."""
+
+    curve: KeyframeCurve
+    shares: dict[str, float] = field(default_factory=lambda: dict(HEAD_CHAIN_SPLIT))
+
+    def __post_init__(self):
+        if self.curve.channels != 3:
+            raise KDInputError(f"joint drive: expected a 3-channel (yaw, pitch, roll) curve, got "
+                               f"{self.curve.channels} channels")
+
+
+@dataclass(frozen=True)
+class SkeletonAnimation:
+    """Joint rotations over time as a sum of :class:`JointDrive` contributions."""
+
+    drives: tuple[JointDrive, ...] = ()
+
+    def joint_angles(self, skeleton: Skeleton, times, order: int = 2):
+        """Angles of every joint and their derivatives: ``order + 1`` arrays of shape (T, J, 3) [rad, rad/s, …]."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        out = [np.zeros((len(t), len(skeleton.names), 3)) for _ in range(order + 1)]
+        for drive in self.drives:
+            vals = drive.curve.evaluate(t, order)
+            for joint, frac in drive.shares.items():
+                j = skeleton.index(joint)
+                for o in range(order + 1):
+                    out[o][:, j] += frac * vals[o]
+        return tuple(out)
+
+
+def joint_transforms(skeleton: Skeleton, angles):
+    """World transforms of every joint, as a triplet of (T, J, 4, 4) arrays (value, d/dt, d²/dt²).
+
+    ``angles`` is the triplet from :meth:`SkeletonAnimation.joint_angles` (order 2).
+    """
+    th, dth, ddth = angles
+    T, J, _ = th.shape
+    G = [None] * J
+    for j in range(J):
+        R = (np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3, 3)), np.zeros((T, 3, 3)))
+        for c, axis in enumerate(_AXES):
+            R = _mul(R, _axis_rotation(axis, th[:, j, c], dth[:, j, c], ddth[:, j, c]))
+        p = skeleton.positions[j]
+        L = []
+        for k, Rk in enumerate(R):
+            M = np.zeros((T, 4, 4))
+            M[:, :3, :3] = Rk
+            M[:, :3, 3] = (p if k == 0 else 0.0) - Rk @ p
+            if k == 0:
+                M[:, 3, 3] = 1.0
+            L.append(M)
+        parent = skeleton.parents[j]
+        G[j] = tuple(L) if parent < 0 else _mul(G[parent], tuple(L))
+    return tuple(np.stack([g[k] for g in G], axis=1) for k in range(3))
+
+
+def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
+    """Linear blend skinning of blend-shape positions with derivatives.
+
+    Args:
+        transforms: triplet of joint world transforms (T, J, 4, 4) from :func:`joint_transforms`.
+        y, dy, ddy: blend-shape positions [m] and their time derivatives, each (T, N, 3).
+    Returns:
+        x, ẋ, ẍ, each (T, N, 3): x = Σ_j w_ij G_j ỹ + (1 − Σ_j w_ij) y, differentiated by the product rule.
+    """
+    W = skeleton.weights
+    rest = 1.0 - W.sum(axis=1)
+    G, dG, ddG = (g[:, :, :3, :] for g in transforms)  # (T, J, 3, 4)
+    M = np.einsum("nj,tjab->tnab", W, G)
+    M[:, :, 0, 0] += rest
+    M[:, :, 1, 1] += rest
+    M[:, :, 2, 2] += rest
+    x = np.einsum("tnab,tnb->tna", M[..., :3], y) + M[..., 3]
+    if dy is None:
+        return x, None, None
+    dM = np.einsum("nj,tjab->tnab", W, dG)
+    ddM = np.einsum("nj,tjab->tnab", W, ddG)
+    dx = np.einsum("tnab,tnb->tna", dM[..., :3], y) + dM[..., 3] + np.einsum("tnab,tnb->tna", M[..., :3], dy)
+    ddx = (np.einsum("tnab,tnb->tna", ddM[..., :3], y) + ddM[..., 3]
+           + 2 * np.einsum("tnab,tnb->tna", dM[..., :3], dy) + np.einsum("tnab,tnb->tna", M[..., :3], ddy))
+    return x, dx, ddx

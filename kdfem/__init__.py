@@ -1,0 +1,1 @@
+"""kdfem: passive deformable objects (tetrahedral FEM) driven by an animated head, and their KD windows."""

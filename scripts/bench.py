@@ -1,0 +1,95 @@
+"""Run the benchmarks in ``benchmarks/`` and write ``BENCHMARKS.md``.
+
+Each module ``benchmarks/bench_*.py`` exposes ``BENCHMARKS``: a list of ``(name, function)``; each function takes
+``repeats`` and returns a list of results ``{"name", "size", "median_s", "rate", "unit"}`` (``rate`` in ``unit``,
+e.g. vertex-steps/s; ``size`` a short description such as "4.5k vertices").
+
+    python scripts/bench.py [--only NAME] [--json] [--repeats N] [--out BENCHMARKS.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def discover():
+    out = []
+    for path in sorted((ROOT / "benchmarks").glob("bench_*.py")):
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        out.extend(mod.BENCHMARKS)
+    return out
+
+
+def machine() -> str:
+    import numpy
+    import warp
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {numpy.__version__}, "
+            f"warp {warp.config.version}")
+
+
+def write_markdown(path: Path, results: list[dict]) -> None:
+    lines = [
+        "# Benchmarks",
+        "",
+        f"Written by `python scripts/bench.py` on {datetime.date.today().isoformat()}.",
+        f"Machine: {machine()}.",
+        "Medians over repeats; compare ratios within one run (the machine is shared and noisy).",
+        "",
+        "| benchmark | size | median [s] | rate | unit |",
+        "|---|---|---:|---:|---|",
+    ]
+    for r in results:
+        rate = "" if r.get("rate") is None else f"{r['rate']:.4g}"
+        lines.append(f"| {r['name']} | {r['size']} | {r['median_s']:.4g} | {rate} | {r.get('unit', '')} |")
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", help="run only the benchmark with this name (prefix match)")
+    ap.add_argument("--json", action="store_true", help="print the results as a JSON list")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
+    args = ap.parse_args(argv)
+    benches = [(n, f) for n, f in discover() if not args.only or n.startswith(args.only)]
+    if not benches:
+        print(f"bench: no benchmark named {args.only!r}", file=sys.stderr)
+        return 2
+    results = []
+    for name, fn in benches:
+        for r in fn(args.repeats):
+            results.append(r)
+            if not args.json:
+                print(f"{r['name']:40s} {r['size']:>18s} median {r['median_s'] * 1e3:10.3f} ms  "
+                      f"{(r.get('rate') or 0):12.4g} {r.get('unit', '')}", flush=True)
+    if args.json:
+        print(json.dumps(results, indent=2))
+    if not args.only:
+        write_markdown(args.out, results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

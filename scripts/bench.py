@@ -78,7 +78,7 @@ def main(argv=None) -> int:
         print(f"bench: no benchmark named {args.only!r}", file=sys.stderr)
         return 2
     results = []
-    for name, fn in benches:
+    for _name, fn in benches:
         for r in fn(args.repeats):
             results.append(r)
             if not args.json:

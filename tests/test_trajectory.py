@@ -1,0 +1,74 @@
+"""Kinematic trajectories: LBS identity at rest, exact derivatives, rigid head motion, demo shot, bad input."""
+
+import numpy as np
+import pytest
+
+from kdfaces import FaceAnimation, JointDrive, KDInputError, KeyframeCurve, KinematicTrajectory, ShapeTrack
+from kdfaces.demo import demo_animation
+from kdfaces.skeleton import SkeletonAnimation, joint_transforms
+
+
+def head_turn(shares=None):
+    c = KeyframeCurve.create([0.0, 0.4, 1.0], [[0, 0, 0], [0.5, -0.2, 0.1], [0.1, 0.3, 0.0]])
+    return SkeletonAnimation((JointDrive(c) if shares is None else JointDrive(c, shares),))
+
+
+def test_lbs_is_identity_at_rest_pose(default_rig):
+    anim = FaceAnimation(skeleton=SkeletonAnimation((JointDrive(KeyframeCurve.create([0, 1], np.zeros((2, 3)))),)))
+    x, v, a = KinematicTrajectory(default_rig, anim).evaluate([0.0, 0.5])
+    np.testing.assert_allclose(x, np.broadcast_to(default_rig.neutral, x.shape), atol=1e-15)
+    assert not v.any() and not a.any()
+
+
+def test_trajectory_derivatives_match_finite_differences(default_rig):
+    smile = ShapeTrack(("mouthSmileLeft", "jawOpen"), KeyframeCurve.create([0, 0.5, 1.0], [[0, 0], [1, 0.6], [0.2, 0]]))
+    traj = KinematicTrajectory(default_rig, FaceAnimation(tracks=(smile,), skeleton=head_turn()))
+    t = np.array([0.17, 0.33, 0.71])
+    e = 1e-5
+    x, v, a = traj.evaluate(t)
+    xp, vp, _ = traj.evaluate(t + e)
+    xm, vm, _ = traj.evaluate(t - e)
+    # central differences: truncation O(e²·|x'''|) ~ 1e-10 m/s, round-off ~1e-16·|x|/e ~ 1e-11 m/s
+    np.testing.assert_allclose(v, (xp - xm) / (2 * e), atol=1e-8)
+    np.testing.assert_allclose(a, (vp - vm) / (2 * e), atol=1e-6)
+    assert np.abs(v).max() > 0.05  # the head really moves
+
+
+def test_head_only_rotation_is_rigid_for_fully_head_weighted_vertices(default_rig):
+    skel = default_rig.skeleton
+    traj = KinematicTrajectory(default_rig, FaceAnimation(skeleton=head_turn({"head": 1.0})))
+    x = traj.positions([0.4])[0]
+    full = np.flatnonzero(skel.weights[:, skel.index("head")] + skel.weights[:, skel.index("jaw")] > 1 - 1e-6)
+    assert len(full) > 1000
+    sel = full[:: max(1, len(full) // 300)]
+    d0 = np.linalg.norm(default_rig.neutral[sel, None] - default_rig.neutral[None, sel], axis=-1)
+    d1 = np.linalg.norm(x[sel, None] - x[None, sel], axis=-1)
+    np.testing.assert_allclose(d1, d0, atol=1e-12)
+    # the head pivot does not move under a head-only rotation
+    G = joint_transforms(skel, SkeletonAnimation((head_turn({"head": 1.0}).drives[0],)).joint_angles(skel, [0.4]))[0]
+    p = skel.positions[skel.index("head")]
+    np.testing.assert_allclose(G[0, skel.index("head"), :3, :3] @ p + G[0, skel.index("head"), :3, 3], p, atol=1e-14)
+
+
+def test_demo_shot_has_expressions_and_sharp_head_motion(default_rig):
+    anim = demo_animation()
+    assert anim.fps == 25 and abs(anim.duration - 6.0) < 1e-12 and len(anim.frame_times) == 151
+    traj = KinematicTrajectory(default_rig, anim)
+    x, v, a = traj.evaluate(anim.frame_times)
+    assert np.isfinite(x).all() and np.isfinite(a).all()
+    assert np.linalg.norm(a, axis=-1).max() > 5.0  # m/s²: sharp starts and stops
+    w = traj.weights(anim.frame_times, 0)[0]
+    for name in ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft"):
+        assert w[:, default_rig.shape_names.index(name)].max() > 0.6
+
+
+def test_unknown_shape_in_animation(default_rig):
+    bad = ShapeTrack(("smileLeft",), KeyframeCurve.create([0, 1], [0, 1]))
+    with pytest.raises(KDInputError, match="animation 'animation': unknown shape name 'smileLeft'"):
+        KinematicTrajectory(default_rig, FaceAnimation(tracks=(bad,)))
+
+
+def test_unknown_joint(default_rig):
+    anim = FaceAnimation(skeleton=head_turn({"skull": 1.0}))
+    with pytest.raises(KDInputError, match="unknown joint 'skull'"):
+        KinematicTrajectory(default_rig, anim).evaluate([0.1])

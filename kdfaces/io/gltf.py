@@ -1,0 +1,479 @@
+"""glTF 2.0 blend-shape rigs (``pygltflib``): import of morph targets and weight animations, and export.
+
+Import: the base mesh's ``POSITION`` plus each morph target's ``POSITION`` deltas become a
+:class:`~kdfaces.rig.BlendshapeRig`; shape names come from ``mesh.extras.targetNames`` (the convention of Blender
+and three.js). All triangle primitives of the mesh are concatenated. Accessors may be strided (``byteStride``),
+sparse, or normalized integers (``KHR_mesh_quantization``). The world transform of the first node that
+instances the mesh is applied, so positions are in scene metres; glTF is y-up in metres like kdfaces, so no
+other conversion happens. Weight animation channels (``target.path == "weights"``) become a
+:class:`~kdfaces.trajectory.FaceAnimation` with one :class:`~kdfaces.trajectory.ShapeTrack` (LINEAR →
+``linear``, CUBICSPLINE → ``hermite``). Skins are not imported.
+
+Export: :func:`save_gltf` writes a rig (and optionally its weight animation, sampled per frame) as ``.gltf``
+(one JSON file with an embedded base64 buffer) or ``.glb``. glTF stores float32, so the neutral round-trips to
+half a float32 ulp (≤ 1.2e-7 m for |x| < 2 m) and the float32 deltas exactly.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+
+from ..curves import KeyframeCurve
+from ..errors import KDInputError, check_finite
+from ..names import canonical_name
+from ..rig import BlendshapeRig
+from ..skeleton import SkeletonAnimation
+from ..trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .pointcache import infer_fps, write_bytes_atomic
+
+__all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf"]
+
+_COMPONENTS = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"), 5123: np.dtype("<u2"),
+               5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
+_NORMALIZED_MAX = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}  # glTF 2.0 §3.11
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_TRIANGLES = 4
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_FLOAT, _UNSIGNED_INT = 5126, 5125
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# reading
+
+
+class _Document:
+    """A parsed glTF file with its buffers resolved; reads accessors as numpy arrays."""
+
+    def __init__(self, path):
+        import pygltflib
+
+        self.path = p = Path(path)
+        if not p.is_file():
+            raise KDInputError(f"{p}: file not found")
+        data = p.read_bytes()
+        try:
+            if data[:4] == b"glTF":
+                g = pygltflib.GLTF2.load_from_bytes(data)
+            else:
+                g = pygltflib.GLTF2.from_json(data.decode("utf-8"), infer_missing=True)
+        except Exception as e:  # noqa: BLE001 - any unparsable file is one error
+            raise KDInputError(f"{p}: not a readable glTF 2.0 file ({type(e).__name__}: {e})") from None
+        if g is None or not str(getattr(g.asset, "version", "2.0")).startswith("2"):
+            raise KDInputError(f"{p}: expected a glTF 2.0 asset")
+        self.gltf = g
+        self._buffers: dict[int, bytes] = {}
+
+    def _item(self, kind: str, index, where: str):
+        items = getattr(self.gltf, kind) or []
+        if not isinstance(index, int) or not 0 <= index < len(items):
+            raise KDInputError(f"{self.path}: {where}: {kind} index {index!r} out of range (file has {len(items)})")
+        return items[index]
+
+    def buffer(self, index: int, where: str) -> bytes:
+        if index not in self._buffers:
+            buf = self._item("buffers", index, where)
+            uri = buf.uri
+            if uri is None:
+                blob = self.gltf.binary_blob()
+                if blob is None:
+                    raise KDInputError(f"{self.path}: buffer {index} has no uri and the file has no GLB binary chunk")
+            elif uri.startswith("data:"):
+                try:
+                    blob = base64.b64decode(uri.split(",", 1)[1], validate=True)
+                except (IndexError, ValueError):
+                    raise KDInputError(f"{self.path}: buffer {index}: malformed base64 data URI") from None
+            else:
+                ext = self.path.parent / unquote(uri)
+                if not ext.is_file():
+                    raise KDInputError(f"{self.path}: buffer {index}: external file {ext} not found")
+                blob = ext.read_bytes()
+            if len(blob) < (buf.byteLength or 0):
+                raise KDInputError(f"{self.path}: buffer {index}: {len(blob)} bytes, byteLength says {buf.byteLength}")
+            self._buffers[index] = bytes(blob)
+        return self._buffers[index]
+
+    def _view(self, view_index, offset: int, count: int, width: int, dtype: np.dtype, where: str) -> np.ndarray:
+        """``count`` elements of ``width`` components from a (possibly strided) buffer view, shape (count, width)."""
+        bv = self._item("bufferViews", view_index, where)
+        data = self.buffer(bv.buffer, f"{where} bufferView {view_index}")
+        elem = width * dtype.itemsize
+        stride = bv.byteStride or elem
+        if stride < elem:
+            raise KDInputError(f"{self.path}: {where}: bufferView {view_index} byteStride {stride} is smaller than "
+                               f"one element ({elem} bytes)")
+        start = (bv.byteOffset or 0) + (offset or 0)
+        needed = (offset or 0) + (count - 1) * stride + elem if count else 0
+        if needed > bv.byteLength or (bv.byteOffset or 0) + bv.byteLength > len(data):
+            raise KDInputError(f"{self.path}: {where}: {count} elements need {needed} bytes of bufferView "
+                               f"{view_index}, which has {bv.byteLength} (or runs past its buffer)")
+        if count == 0:
+            return np.zeros((0, width), dtype)
+        return np.ndarray((count, width), dtype=dtype, buffer=data, offset=start, strides=(stride, dtype.itemsize))
+
+    def accessor(self, index, where: str) -> np.ndarray:
+        """Accessor ``index`` as an array of shape (count, width); normalized integers become float64."""
+        a = self._item("accessors", index, where)
+        where = f"{where} (accessor {index})"
+        dtype, width = _COMPONENTS.get(a.componentType), _WIDTH.get(a.type)
+        if dtype is None or width is None or a.count is None or a.count < 0:
+            raise KDInputError(f"{self.path}: {where}: unsupported componentType {a.componentType} / type {a.type}")
+        if a.bufferView is None:
+            out = np.zeros((a.count, width), dtype)
+        else:
+            out = self._view(a.bufferView, a.byteOffset, a.count, width, dtype, where).copy()
+        if a.sparse is not None:
+            s = a.sparse
+            idx_dtype = _COMPONENTS.get(s.indices.componentType)
+            if idx_dtype is None or idx_dtype.kind != "u":
+                raise KDInputError(f"{self.path}: {where}: sparse indices need an unsigned componentType")
+            idx = self._view(s.indices.bufferView, s.indices.byteOffset, s.count, 1, idx_dtype, f"{where} sparse")[:, 0]
+            vals = self._view(s.values.bufferView, s.values.byteOffset, s.count, width, dtype, f"{where} sparse")
+            if s.count and int(idx.max()) >= a.count:
+                raise KDInputError(f"{self.path}: {where}: sparse index {int(idx.max())} ≥ count {a.count}")
+            out[idx.astype(np.int64)] = vals
+        if a.normalized and a.componentType in _NORMALIZED_MAX:
+            return np.maximum(out.astype(np.float64) / _NORMALIZED_MAX[a.componentType], -1.0)
+        return out
+
+    def floats(self, index, width: int, where: str) -> np.ndarray:
+        x = self.accessor(index, where)
+        if x.shape[1] != width:
+            raise KDInputError(f"{self.path}: {where}: expected {width} components per element, got {x.shape[1]}")
+        x = x.astype(np.float64)
+        check_finite(x, f"{self.path}: {where}")
+        return x
+
+
+def _attr(attributes, name: str):
+    """An attribute index from a pygltflib ``Attributes`` object or a plain dict (targets may be either)."""
+    if attributes is None:
+        return None
+    if isinstance(attributes, dict):
+        return attributes.get(name)
+    return getattr(attributes, name, None)
+
+
+def _node_matrix(node) -> np.ndarray:
+    """Local 4×4 transform of a node: its column-major ``matrix`` or T·R·S."""
+    if node.matrix is not None and len(node.matrix) == 16:
+        return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T
+    m = np.eye(4)
+    x, y, z, w = node.rotation if node.rotation is not None else (0.0, 0.0, 0.0, 1.0)
+    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    s = np.asarray(node.scale if node.scale is not None else (1.0, 1.0, 1.0), dtype=np.float64)
+    m[:3, :3] = r * s
+    m[:3, 3] = node.translation if node.translation is not None else (0.0, 0.0, 0.0)
+    return m
+
+
+def _world_matrix(g, node_index: int) -> np.ndarray:
+    parent = {c: i for i, n in enumerate(g.nodes) for c in (n.children or [])}
+    m, j, seen = np.eye(4), node_index, set()
+    while j is not None and j not in seen:
+        seen.add(j)
+        m = _node_matrix(g.nodes[j]) @ m
+        j = parent.get(j)
+    return m
+
+
+def _pick_mesh(doc: _Document, mesh) -> int:
+    meshes = doc.gltf.meshes or []
+    if not meshes:
+        raise KDInputError(f"{doc.path}: the file holds no meshes")
+    if mesh is None:
+        with_targets = [i for i, m in enumerate(meshes) if any(p.targets for p in m.primitives)]
+        return with_targets[0] if with_targets else 0
+    if isinstance(mesh, str):
+        names = [m.name for m in meshes]
+        if mesh not in names:
+            raise KDInputError(f"{doc.path}: no mesh named {mesh!r}; meshes are {names}")
+        return names.index(mesh)
+    doc._item("meshes", mesh, "mesh")
+    return int(mesh)
+
+
+def _target_names(doc: _Document, m, k: int) -> list[str]:
+    for extras in [m.extras] + [p.extras for p in m.primitives]:
+        names = (extras or {}).get("targetNames") if isinstance(extras, dict) else None
+        if names is not None:
+            if len(names) != k:
+                raise KDInputError(f"{doc.path}: mesh {m.name!r} extras.targetNames lists {len(names)} names for "
+                                   f"{k} morph targets")
+            return [str(n) for n in names]
+    return [f"target{i}" for i in range(k)]
+
+
+def _read_rig(doc: _Document, mesh_index: int, *, require_targets: bool, apply_node_transform: bool):
+    m = doc.gltf.meshes[mesh_index]
+    label = f"mesh {m.name or mesh_index!r}"
+    counts = {len(p.targets or []) for p in m.primitives}
+    if len(counts) != 1:
+        raise KDInputError(f"{doc.path}: {label}: primitives have different numbers of morph targets {sorted(counts)}")
+    k = counts.pop()
+    if k == 0 and require_targets:
+        raise KDInputError(f"{doc.path}: {label} has no morph targets; a blend-shape rig needs at least one "
+                           f"(export the shape keys / blend shapes as glTF morph targets)")
+    neutral, deltas, faces, offset = [], [], [], 0
+    for pi, prim in enumerate(m.primitives):
+        where = f"{label} primitive {pi}"
+        if prim.mode not in (None, _TRIANGLES):
+            raise KDInputError(f"{doc.path}: {where}: mode {prim.mode}; expected triangles (mode 4)")
+        pos_index = _attr(prim.attributes, "POSITION")
+        if pos_index is None:
+            raise KDInputError(f"{doc.path}: {where} has no POSITION attribute")
+        x = doc.floats(pos_index, 3, f"{where} POSITION")
+        if prim.indices is None:
+            tri = np.arange(len(x), dtype=np.int64)
+        else:
+            tri = doc.accessor(prim.indices, f"{where} indices").reshape(-1).astype(np.int64)
+        if len(tri) % 3 or (tri.size and (tri.min() < 0 or tri.max() >= len(x))):
+            raise KDInputError(f"{doc.path}: {where}: expected triangle indices in [0, {len(x)}), "
+                               f"{len(tri)} indices given")
+        d = np.zeros((k, len(x), 3))
+        for ti, target in enumerate(prim.targets or []):
+            t_index = _attr(target, "POSITION")
+            if t_index is None:
+                continue
+            dt = doc.floats(t_index, 3, f"{where} morph target {ti} POSITION")
+            if len(dt) != len(x):
+                raise KDInputError(f"{doc.path}: {where}: morph target {ti} has {len(dt)} vertices, POSITION has "
+                                   f"{len(x)} (mismatched vertex counts)")
+            d[ti] = dt
+        neutral.append(x)
+        deltas.append(d)
+        faces.append(tri.reshape(-1, 3) + offset)
+        offset += len(x)
+    x0, dx, f = np.concatenate(neutral), np.concatenate(deltas, axis=1), np.concatenate(faces)
+    if apply_node_transform:
+        node = next((i for i, n in enumerate(doc.gltf.nodes or []) if n.mesh == mesh_index), None)
+        if node is not None:
+            w = _world_matrix(doc.gltf, node)
+            x0 = x0 @ w[:3, :3].T + w[:3, 3]
+            dx = dx @ w[:3, :3].T
+    return x0, dx, f, _target_names(doc, m, k), m.name or doc.path.stem
+
+
+def _pick_animation(doc: _Document, mesh_index: int, animation):
+    """(animation index, weights channel) of the chosen animation driving the mesh's weights, or None."""
+    g = doc.gltf
+    nodes = {i for i, n in enumerate(g.nodes or []) if n.mesh == mesh_index}
+    found = []
+    for ai, a in enumerate(g.animations or []):
+        ch = next((c for c in a.channels or [] if c.target is not None and c.target.path == "weights"
+                   and c.target.node in nodes), None)
+        if ch is not None:
+            found.append((ai, ch))
+    if animation is None:
+        return found[0] if found else None
+    for ai, ch in found:
+        if animation == ai or animation == g.animations[ai].name:
+            return ai, ch
+    raise KDInputError(f"{doc.path}: no animation {animation!r} with a weights channel for mesh {mesh_index}; "
+                       f"animations with one: {[g.animations[ai].name or ai for ai, _ in found]}")
+
+
+def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animation, fps) -> FaceAnimation | None:
+    picked = _pick_animation(doc, mesh_index, animation)
+    if picked is None:
+        return None
+    ai, ch = picked
+    anim = doc.gltf.animations[ai]
+    label = f"animation {anim.name or ai!r}"
+    samplers = anim.samplers or []
+    if not isinstance(ch.sampler, int) or not 0 <= ch.sampler < len(samplers):
+        raise KDInputError(f"{doc.path}: {label}: weights channel names sampler {ch.sampler!r}, which does not exist")
+    s = samplers[ch.sampler]
+    times = doc.floats(s.input, 1, f"{label} sampler {ch.sampler} input")[:, 0]
+    out = doc.floats(s.output, 1, f"{label} sampler {ch.sampler} output")[:, 0]
+    interp, k, m = s.interpolation or "LINEAR", len(names), len(times)
+    per_key = 3 * k if interp == "CUBICSPLINE" else k
+    if len(out) != m * per_key:
+        raise KDInputError(f"{doc.path}: {label}: {len(out)} weight values for {m} keys × {k} morph targets"
+                           f"{' × 3 (cubic spline)' if interp == 'CUBICSPLINE' else ''} (mismatched counts)")
+    where = f"{doc.path}: {label}"
+    if interp == "LINEAR":
+        curve = KeyframeCurve.create(times, out.reshape(m, k), interpolation="linear", where=where)
+    elif interp == "CUBICSPLINE":
+        a, v, b = np.moveaxis(out.reshape(m, 3, k), 1, 0)  # in-tangents, values, out-tangents [1/s]
+        if not np.allclose(a[1:-1], b[1:-1], rtol=1e-5, atol=1e-7):
+            raise KDInputError(f"{where}: cubic spline keys with broken tangents (in ≠ out) are not supported; "
+                               f"re-export with LINEAR interpolation")
+        tangents = np.concatenate([b[:-1], a[-1:]]) if m > 1 else b
+        curve = KeyframeCurve.create(times, v, interpolation="hermite", tangents=tangents, where=where)
+    else:
+        raise KDInputError(f"{where}: interpolation {interp!r} not supported for weights; expected LINEAR or "
+                           f"CUBICSPLINE (a STEP change has no finite velocity for KD)")
+    rate = infer_fps(times, fps=fps, where=where)
+    start, end = float(times[0]), float(times[-1])
+    return FaceAnimation(tracks=(ShapeTrack(tuple(canonical_name(n) for n in names), curve),), start=start,
+                         end=end if end > start else start + 1.0 / rate, fps=rate, name=anim.name or f"animation{ai}")
+
+
+def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | None = None, fps: float | None = None,
+              require_targets: bool = True, apply_node_transform: bool = True
+              ) -> tuple[BlendshapeRig, FaceAnimation | None]:
+    """Import a glTF 2.0 rig and its weight animation from a ``.gltf`` or ``.glb`` file.
+
+    Args:
+        path: the file.
+        mesh: mesh index or name; default the first mesh with morph targets.
+        animation: animation index or name; default the first one with a weights channel for that mesh.
+        fps: frame rate of the returned animation [1/s]; default 1 / the median key spacing.
+        require_targets: raise :class:`KDInputError` if the mesh has no morph targets.
+        apply_node_transform: apply the world transform of the first node instancing the mesh.
+
+    Returns:
+        The rig (positions [m], no skeleton) and a :class:`FaceAnimation` or None if no weights are animated.
+    """
+    doc = _Document(path)
+    index = _pick_mesh(doc, mesh)
+    x0, dx, f, names, name = _read_rig(doc, index, require_targets=require_targets,
+                                       apply_node_transform=apply_node_transform)
+    rig = BlendshapeRig.create(x0, dx, f, names, name=name)
+    return rig, _read_animation(doc, index, names, animation=animation, fps=fps)
+
+
+def load_gltf_rig(path, *, mesh: int | str | None = None, apply_node_transform: bool = True) -> BlendshapeRig:
+    """The blend-shape rig of a glTF file (see :func:`load_gltf`); a mesh without morph targets is an error."""
+    doc = _Document(path)
+    index = _pick_mesh(doc, mesh)
+    x0, dx, f, names, name = _read_rig(doc, index, require_targets=True, apply_node_transform=apply_node_transform)
+    return BlendshapeRig.create(x0, dx, f, names, name=name)
+
+
+def load_gltf_animation(path, *, mesh: int | str | None = None, animation: int | str | None = None,
+                        fps: float | None = None) -> FaceAnimation:
+    """The morph-weight animation of a glTF file as a :class:`FaceAnimation`; none is an error."""
+    rig, anim = load_gltf(path, mesh=mesh, animation=animation, fps=fps)
+    if anim is None:
+        raise KDInputError(f"{path}: no animation channel with path 'weights' drives mesh {rig.name!r}")
+    return anim
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# writing
+
+
+class _BinaryBuilder:
+    """Collects 4-byte aligned buffer views of one buffer and the accessors pointing into them."""
+
+    def __init__(self, gltf):
+        self.gltf = gltf
+        self.chunks: list[bytes] = []
+        self.length = 0
+
+    def view(self, array: np.ndarray, target: int | None = None) -> int:
+        import pygltflib
+
+        data = np.ascontiguousarray(array).tobytes()
+        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=self.length, byteLength=len(data),
+                                                          target=target))
+        pad = (-len(data)) % 4
+        self.chunks.append(data + b"\0" * pad)
+        self.length += len(data) + pad
+        return len(self.gltf.bufferViews) - 1
+
+    def accessor(self, array: np.ndarray | None, type_: str, *, count: int | None = None, target: int | None = None,
+                 bounds: np.ndarray | None = None, sparse=None) -> int:
+        """Add an accessor for ``array`` (float32 or uint32), or a bufferView-less one of ``count`` zeros."""
+        import pygltflib
+
+        acc = pygltflib.Accessor(componentType=_UNSIGNED_INT if array is not None and array.dtype == np.uint32
+                                 else _FLOAT, count=count if array is None else len(array), type=type_,
+                                 sparse=sparse)
+        if array is not None:
+            acc.bufferView = self.view(array, target)
+        else:
+            acc.byteOffset = None  # MUST NOT be defined without a bufferView (glTF 2.0 accessor.byteOffset)
+        if bounds is not None:
+            acc.min, acc.max = bounds.min(axis=0).tolist(), bounds.max(axis=0).tolist()
+        self.gltf.accessors.append(acc)
+        return len(self.gltf.accessors) - 1
+
+    def blob(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def _target_accessor(b: _BinaryBuilder, delta: np.ndarray, *, sparse: bool) -> int:
+    """A morph target POSITION accessor: sparse (changed vertices only) if that is smaller, dense otherwise."""
+    import pygltflib
+
+    d = np.ascontiguousarray(delta, dtype="<f4")
+    rows = np.flatnonzero((d != 0).any(axis=1)).astype("<u4")
+    n = len(d)
+    if len(rows) == 0:  # all zeros: an accessor without a bufferView reads as zeros (glTF 2.0 §3.6.2.3)
+        return b.accessor(None, "VEC3", count=n, bounds=np.zeros((1, 3), "<f4"))
+    if sparse and len(rows) * 4 < n * 3:  # 16 bytes per changed vertex vs 12 per vertex
+        spec = pygltflib.Sparse(
+            count=len(rows),
+            indices=pygltflib.AccessorSparseIndices(bufferView=b.view(rows), componentType=_UNSIGNED_INT),
+            values=pygltflib.AccessorSparseValues(bufferView=b.view(d[rows])))
+        return b.accessor(None, "VEC3", count=n, bounds=d, sparse=spec)
+    return b.accessor(d, "VEC3", target=_ARRAY_BUFFER, bounds=d)
+
+
+def _sampled_weights(rig: BlendshapeRig, animation: FaceAnimation) -> tuple[np.ndarray, np.ndarray]:
+    """Frame times [s], shape (T,), and shape weights, shape (T, K), of the animation's shape tracks."""
+    shapes_only = dataclasses.replace(animation, skeleton=SkeletonAnimation())
+    times = animation.frame_times
+    return times, KinematicTrajectory(rig, shapes_only).weights(times, 0)[0]
+
+
+def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = None, sparse: bool = True) -> Path:
+    """Write ``rig`` as a glTF 2.0 mesh with morph targets to ``.gltf`` (embedded buffer) or ``.glb``, atomically.
+
+    Args:
+        rig: the rig; neutral and deltas are stored as float32 [m], faces as uint32, names in
+            ``mesh.extras.targetNames``. The skeleton is not written.
+        path: output file; the extension picks the container.
+        animation: optional; its shape weights are sampled at its frame times and written as one LINEAR weights
+            channel (head rotations are not written).
+        sparse: store morph targets that move few vertices as sparse accessors.
+    """
+    import pygltflib
+
+    p = Path(path)
+    if p.suffix not in (".gltf", ".glb"):
+        raise KDInputError(f"{p}: expected a .gltf or .glb file name")
+    if len(rig.neutral) >= 2**32 - 1:
+        raise KDInputError(f"{p}: rig {rig.name!r} has too many vertices for uint32 indices")
+    g = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="kdfaces"))
+    b = _BinaryBuilder(g)
+    x = np.ascontiguousarray(rig.neutral, dtype="<f4")
+    prim = pygltflib.Primitive(
+        attributes=pygltflib.Attributes(POSITION=b.accessor(x, "VEC3", target=_ARRAY_BUFFER, bounds=x)),
+        indices=b.accessor(np.ascontiguousarray(rig.faces.reshape(-1), dtype="<u4"), "SCALAR",
+                           target=_ELEMENT_ARRAY_BUFFER),
+        mode=_TRIANGLES,
+        targets=[pygltflib.Attributes(POSITION=_target_accessor(b, d, sparse=sparse)) for d in rig.deltas])
+    g.meshes.append(pygltflib.Mesh(name=rig.name, primitives=[prim], weights=[0.0] * rig.num_shapes,
+                                   extras={"targetNames": list(rig.shape_names)}))
+    g.nodes.append(pygltflib.Node(name=rig.name, mesh=0))
+    g.scenes.append(pygltflib.Scene(nodes=[0]))
+    g.scene = 0
+    if animation is not None:
+        times, w = _sampled_weights(rig, animation)
+        t32 = times.astype("<f4")[:, None]
+        sampler = pygltflib.AnimationSampler(input=b.accessor(t32, "SCALAR", bounds=t32),
+                                             output=b.accessor(w.astype("<f4").reshape(-1), "SCALAR"),
+                                             interpolation="LINEAR")
+        target = pygltflib.AnimationChannelTarget(node=0, path="weights")
+        g.animations.append(pygltflib.Animation(name=animation.name, samplers=[sampler],
+                                                channels=[pygltflib.AnimationChannel(sampler=0, target=target)]))
+    blob = b.blob()
+    if p.suffix == ".glb":
+        g.buffers.append(pygltflib.Buffer(byteLength=len(blob)))
+        g.set_binary_blob(blob)
+        payload = b"".join(g.save_to_bytes())
+    else:
+        uri = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
+        g.buffers.append(pygltflib.Buffer(byteLength=len(blob), uri=uri))
+        payload = g.to_json().encode("utf-8")
+    return write_bytes_atomic(p, payload)

@@ -1,0 +1,184 @@
+"""USD and PC2 point caches: files read back independently (pxr, struct) and compared frame by frame.
+
+Both formats store float32, so read-back positions must equal ``positions.astype(float32)`` exactly; against the
+float64 input the error is at most half a float32 ulp, 2^-24 · max|x| (≈ 5e-8 m for the 0.85 m-high head).
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+
+import numpy as np
+import pytest
+
+from kdfaces import FaceAnimation, KDInputError, KeyframeCurve, KinematicTrajectory, ShapeTrack
+from kdfaces.io.export import add_export_option, add_export_rig_parser, export_trajectory
+from kdfaces.io.pointcache import read_pc2, read_usd, write_pc2, write_usd
+from kdfaces.io.rigfiles import load_obj_folder
+
+pxr = pytest.importorskip("pxr")
+from pxr import Usd, UsdGeom  # noqa: E402
+
+FPS = 25.0
+
+
+@pytest.fixture(scope="module")
+def rig(default_rig):
+    return default_rig
+
+
+@pytest.fixture(scope="module")
+def shot(rig):
+    """Kinematic trajectory of a jaw opening and a smile, frames 5..24 at 25 fps: (times (F,), positions (F,N,3))."""
+    curve = KeyframeCurve.create([0.0, 0.4, 1.0], [[0.0, 0.0], [1.0, 0.3], [0.2, 0.8]])
+    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen", "mouthSmileLeft"), curve),), start=0.2, end=0.96, fps=FPS)
+    times = anim.frame_times
+    return times, KinematicTrajectory(rig, anim).positions(times)
+
+
+def _assert_float32_exact(read, x):
+    np.testing.assert_array_equal(read, x.astype(np.float32))
+    assert np.abs(read - x).max() <= 2.0**-24 * np.abs(x).max()
+
+
+def test_usd_round_trip_read_independently(tmp_path, rig, shot):
+    times, x = shot
+    assert np.abs(x - x[0]).max() > 1e-3  # the shot moves vertices by millimetres: a real comparison
+    path = write_usd(tmp_path / "shot.usdc", x, times, rig.faces, fps=FPS)
+    stage = Usd.Stage.Open(str(path))
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    assert stage.GetTimeCodesPerSecond() == FPS and stage.GetFramesPerSecond() == FPS
+    assert stage.GetStartTimeCode() == pytest.approx(5.0) and stage.GetEndTimeCode() == pytest.approx(24.0)
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/face"))
+    assert stage.GetDefaultPrim().GetPath() == mesh.GetPath()
+    np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), rig.faces)
+    assert set(np.asarray(mesh.GetFaceVertexCountsAttr().Get())) == {3}
+    codes = mesh.GetPointsAttr().GetTimeSamples()
+    np.testing.assert_allclose(codes, times * FPS, rtol=0, atol=1e-9)
+    assert mesh.GetExtentAttr().GetTimeSamples() == codes
+    for f, code in enumerate(codes):
+        pts = np.asarray(mesh.GetPointsAttr().Get(code))
+        _assert_float32_exact(pts, x[f])
+        ext = np.asarray(mesh.GetExtentAttr().Get(code))
+        np.testing.assert_array_equal(ext, [pts.min(axis=0), pts.max(axis=0)])
+    cache = read_usd(path)
+    _assert_float32_exact(cache.positions, x)
+    np.testing.assert_allclose(cache.times, times, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(cache.faces, rig.faces)
+
+
+def test_usda_text_and_inferred_fps(tmp_path, rig, shot):
+    times, x = shot
+    path = write_usd(tmp_path / "shot.usda", x[:3], times[:3], rig.faces, prim_name="head")
+    assert path.read_text().startswith("#usda")
+    stage = Usd.Stage.Open(str(path))
+    assert stage.GetTimeCodesPerSecond() == pytest.approx(FPS)  # inferred from the 0.04 s spacing
+    _assert_float32_exact(np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/head")).GetPointsAttr().Get(6.0)), x[1])
+
+
+def test_pc2_round_trip_read_with_struct(tmp_path, shot):
+    times, x = shot
+    path = write_pc2(tmp_path / "shot.pc2", x, times, fps=FPS)
+    data = path.read_bytes()
+    sig, version, points, start, sampling, samples = struct.unpack("<12siiffi", data[:32])
+    assert (sig, version, points, samples) == (b"POINTCACHE2\0", 1, x.shape[1], len(x))
+    assert start == pytest.approx(5.0) and sampling == 1.0
+    assert len(data) == 32 + len(x) * x.shape[1] * 12
+    frame_bytes = x.shape[1] * 12
+    for f in range(len(x)):
+        vals = struct.unpack(f"<{3 * x.shape[1]}f", data[32 + f * frame_bytes: 32 + (f + 1) * frame_bytes])
+        _assert_float32_exact(np.asarray(vals).reshape(-1, 3), x[f])
+    cache = read_pc2(path, fps=FPS, num_vertices=x.shape[1])
+    _assert_float32_exact(cache.positions, x)
+    np.testing.assert_allclose(cache.times, times, rtol=0, atol=1e-9)
+
+
+def test_pc2_sub_sampled_header(tmp_path, shot):
+    times, x = shot
+    path = write_pc2(tmp_path / "every_other.pc2", x[::2], times[::2], fps=FPS)
+    _, _, _, start, sampling, samples = struct.unpack("<12siiffi", path.read_bytes()[:32])
+    assert (start, sampling, samples) == (5.0, 2.0, len(x[::2]))
+
+
+def test_export_trajectory_dispatch(tmp_path, rig, shot):
+    times, x = shot
+    usd = export_trajectory(tmp_path / "out", x, times, kind="usd", faces=rig.faces, fps=FPS, name="ikd")
+    pc2 = export_trajectory(tmp_path / "out", x, times, kind="pc2", fps=FPS, name="ikd")
+    assert (usd.name, pc2.name) == ("ikd.usdc", "ikd.pc2")
+    assert export_trajectory(tmp_path / "a.usda", x[:2], times[:2], faces=rig.faces).suffix == ".usda"
+    _assert_float32_exact(read_usd(usd).positions, x)
+    _assert_float32_exact(read_pc2(pc2, fps=FPS).positions, x)
+    ap = argparse.ArgumentParser()
+    add_export_option(ap)
+    assert ap.parse_args(["--export", "usd", "--export", "pc2"]).export == ["usd", "pc2"]
+    with pytest.raises(KDInputError, match="expected one of"):
+        export_trajectory(tmp_path / "out", x, times, kind="abc")
+
+
+def test_mismatched_vertex_counts(tmp_path, rig, shot):
+    times, x = shot
+    with pytest.raises(KDInputError, match="mismatched vertex counts"):
+        write_usd(tmp_path / "bad.usdc", x[:, :100], times, rig.faces)
+    with pytest.raises(KDInputError, match="3 frame times for 20 frames"):
+        write_pc2(tmp_path / "bad.pc2", x, times[:3])
+    path = write_pc2(tmp_path / "ok.pc2", x, times)
+    with pytest.raises(KDInputError, match="mismatched vertex counts"):
+        read_pc2(path, num_vertices=100)
+    with pytest.raises(KDInputError, match="uniformly spaced"):
+        write_pc2(tmp_path / "bad.pc2", x[[0, 1, 5]], times[[0, 1, 5]])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.pc2"]
+
+
+def test_truncated_pc2_is_one_error(tmp_path, shot):
+    times, x = shot
+    path = write_pc2(tmp_path / "ok.pc2", x, times)
+    path.write_bytes(path.read_bytes()[:-7])
+    with pytest.raises(KDInputError, match="bytes, expected"):
+        read_pc2(path)
+    (tmp_path / "junk.pc2").write_bytes(b"POINTCACHE3\0" + bytes(40))
+    with pytest.raises(KDInputError, match="signature"):
+        read_pc2(tmp_path / "junk.pc2")
+
+
+def test_unwritable_output_dir_leaves_nothing(tmp_path, rig, shot):
+    times, x = shot
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    for write in (lambda p: write_usd(p / "a.usdc", x, times, rig.faces), lambda p: write_pc2(p / "a.pc2", x, times)):
+        with pytest.raises(KDInputError, match="cannot write here"):
+            write(blocker / "sub")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_failed_write_keeps_old_file_and_no_partial(tmp_path, monkeypatch, shot):
+    times, x = shot
+    path = write_pc2(tmp_path / "a.pc2", x, times)
+    before = path.read_bytes()
+
+    def disk_full(self, data):
+        with open(self, "wb") as fh:
+            fh.write(data[: len(data) // 2])
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("pathlib.Path.write_bytes", disk_full)
+    with pytest.raises(KDInputError, match="No space left"):
+        write_pc2(path, x[:3], times[:3])
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["a.pc2"]
+
+
+def test_export_rig_verb(tmp_path, rig):
+    ap = argparse.ArgumentParser()
+    add_export_rig_parser(ap.add_subparsers(dest="command"))
+    args = ap.parse_args(["export-rig", "--out", str(tmp_path), "--format", "obj", "--format", "glb"])
+    summary = args.func(args)
+    assert summary["outputs"] == ["obj", f"{rig.name}.glb"]
+    assert (tmp_path / "summary.json").is_file()
+    back = load_obj_folder(tmp_path / "obj")
+    order = [back.shape_names.index(n) for n in rig.shape_names]
+    np.testing.assert_allclose(back.neutral, rig.neutral, rtol=0, atol=1e-9)  # OBJ text: 9 significant digits
+    np.testing.assert_allclose(back.deltas[order], rig.deltas, rtol=0, atol=2e-9)
+    np.testing.assert_array_equal(back.faces, rig.faces)

@@ -210,14 +210,14 @@ def _target_names(doc: _Document, m, k: int) -> list[str]:
     return [f"target{i}" for i in range(k)]
 
 
-def _read_rig(doc: _Document, mesh_index: int, *, require_targets: bool, apply_node_transform: bool):
+def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     m = doc.gltf.meshes[mesh_index]
     label = f"mesh {m.name or mesh_index!r}"
     counts = {len(p.targets or []) for p in m.primitives}
     if len(counts) != 1:
         raise KDInputError(f"{doc.path}: {label}: primitives have different numbers of morph targets {sorted(counts)}")
     k = counts.pop()
-    if k == 0 and require_targets:
+    if k == 0:
         raise KDInputError(f"{doc.path}: {label} has no morph targets; a blend-shape rig needs at least one "
                            f"(export the shape keys / blend shapes as glTF morph targets)")
     neutral, deltas, faces, offset = [], [], [], 0
@@ -317,8 +317,7 @@ def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animat
 
 
 def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | None = None, fps: float | None = None,
-              require_targets: bool = True, apply_node_transform: bool = True
-              ) -> tuple[BlendshapeRig, FaceAnimation | None]:
+              apply_node_transform: bool = True) -> tuple[BlendshapeRig, FaceAnimation | None]:
     """Import a glTF 2.0 rig and its weight animation from a ``.gltf`` or ``.glb`` file.
 
     Args:
@@ -326,16 +325,15 @@ def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | Non
         mesh: mesh index or name; default the first mesh with morph targets.
         animation: animation index or name; default the first one with a weights channel for that mesh.
         fps: frame rate of the returned animation [1/s]; default 1 / the median key spacing.
-        require_targets: raise :class:`KDInputError` if the mesh has no morph targets.
         apply_node_transform: apply the world transform of the first node instancing the mesh.
 
     Returns:
         The rig (positions [m], no skeleton) and a :class:`FaceAnimation` or None if no weights are animated.
+        A mesh without morph targets raises :class:`KDInputError`: a blend-shape rig needs at least one.
     """
     doc = _Document(path)
     index = _pick_mesh(doc, mesh)
-    x0, dx, f, names, name = _read_rig(doc, index, require_targets=require_targets,
-                                       apply_node_transform=apply_node_transform)
+    x0, dx, f, names, name = _read_rig(doc, index, apply_node_transform=apply_node_transform)
     rig = BlendshapeRig.create(x0, dx, f, names, name=name)
     return rig, _read_animation(doc, index, names, animation=animation, fps=fps)
 
@@ -344,7 +342,7 @@ def load_gltf_rig(path, *, mesh: int | str | None = None, apply_node_transform: 
     """The blend-shape rig of a glTF file (see :func:`load_gltf`); a mesh without morph targets is an error."""
     doc = _Document(path)
     index = _pick_mesh(doc, mesh)
-    x0, dx, f, names, name = _read_rig(doc, index, require_targets=True, apply_node_transform=apply_node_transform)
+    x0, dx, f, names, name = _read_rig(doc, index, apply_node_transform=apply_node_transform)
     return BlendshapeRig.create(x0, dx, f, names, name=name)
 
 

@@ -1,0 +1,133 @@
+"""Interpolated corrections f(t) = Σ_i λ_i φ_i(t) + β_i ψ_i(t) (paper eq. 6, 9) and corrected trajectories.
+
+A correction has *slots*: a position slot at t_i carries the required correction Δx_i (f(t_i) = Δx_i, eq. 7, 10)
+and owns basis φ_i; a velocity slot at t_j carries Δẋ_j (ḟ(t_j) = Δẋ_j, eq. 11) and owns ψ_j = dφ_j/dt (eq. 8).
+The coefficients solve the small square system A c = Δ with A[a, b] = D^{type(a)} basis_b(t_a) (one row and
+column per slot), for every state coordinate at once. A is LU-factored once (scipy) when the slots are set; each
+update of the Δ values is a back-substitution (the bases and their centres never change during a solve).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from ..errors import KDInputError
+from .bases import Basis
+
+__all__ = ["Slot", "Correction", "CorrectedTrajectory"]
+
+POSITION, VELOCITY = "position", "velocity"
+
+
+@dataclass(frozen=True)
+class Slot:
+    """A correction slot: its time [s], kind (``position`` → φ basis, ``velocity`` → ψ basis) and bell."""
+
+    time: float
+    kind: str
+    basis: Basis
+
+
+class Correction:
+    """f(t) over a state of shape ``state_shape`` (e.g. (N, 3) vertex positions [m]).
+
+    ``values[a]`` is the required correction of slot a (Δx [m] or Δẋ [m/s]), shape ``state_shape``; call
+    :meth:`update` after changing them to refresh the coefficients by LU back-substitution.
+    """
+
+    def __init__(self, slots, state_shape):
+        self.slots = tuple(slots)
+        self.state_shape = tuple(state_shape)
+        n = len(self.slots)
+        if n == 0:
+            raise KDInputError("correction: needs at least one slot")
+        A = np.empty((n, n))
+        for a, sa in enumerate(self.slots):
+            row_order = 0 if sa.kind == POSITION else 1
+            for b, sb in enumerate(self.slots):
+                col_order = 0 if sb.kind == POSITION else 1
+                A[a, b] = sb.basis.evaluate([sa.time], row_order + col_order)[row_order + col_order, 0]
+        self.matrix = A
+        cond = np.linalg.cond(A)
+        if not np.isfinite(cond) or cond > 1e10:
+            times = sorted({round(s.time, 9) for s in self.slots})
+            raise KDInputError(f"constraints at times {times} s give a singular interpolation system (condition "
+                               f"{cond:.2e}): two constraints of one kind share a time, or bells are far too wide")
+        self._lu = scipy.linalg.lu_factor(A)
+        self.values = np.zeros((n, *self.state_shape))
+        self.coefficients = np.zeros_like(self.values)
+
+    def copy(self) -> Correction:
+        c = object.__new__(Correction)
+        c.__dict__.update(self.__dict__)
+        c.values = self.values.copy()
+        c.coefficients = self.coefficients.copy()
+        return c
+
+    def update(self) -> None:
+        """Solve A c = Δ for the coefficients (eq. 7, 10, 11) by back-substitution with the stored LU factors."""
+        n = len(self.slots)
+        rhs = self.values.reshape(n, -1)
+        self.coefficients = scipy.linalg.lu_solve(self._lu, rhs).reshape(self.values.shape)
+
+    def basis_matrix(self, times, order: int = 2) -> np.ndarray:
+        """Φ (order + 1, T, n): d^k/dt^k of slot b's basis function (φ_b or ψ_b) at each time."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        out = np.empty((order + 1, len(t), len(self.slots)))
+        for b, s in enumerate(self.slots):
+            shift = 0 if s.kind == POSITION else 1
+            out[:, :, b] = s.basis.evaluate(t, order + shift)[shift:]
+        return out
+
+    def evaluate(self, times, order: int = 2):
+        """f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays of shape (T, *state_shape)."""
+        phi = self.basis_matrix(times, order)
+        n = len(self.slots)
+        c = self.coefficients.reshape(n, -1)
+        return tuple((phi[k] @ c).reshape(-1, *self.state_shape) for k in range(order + 1))
+
+    def support(self) -> tuple[float, float]:
+        """The time interval outside which f ≡ 0 [s]."""
+        lo = min(s.basis.support()[0] for s in self.slots)
+        hi = max(s.basis.support()[1] for s in self.slots)
+        return lo, hi
+
+
+class CorrectedTrajectory:
+    """x_K + f (and ẋ_K + ḟ, ẍ_K + f̈): the trajectory the KD simulation tracks during IKD (Algorithm 1).
+
+    ``bump`` optionally adds one more term e·φ (or e·ψ/ψ'(t_i)) — the trial trajectory x_K + f + e_i φ_i of line 9;
+    both bumps change the slot's own quantity (position or velocity at t_i) by exactly e.
+    """
+
+    def __init__(self, base, correction: Correction | None, *, bump: tuple[Slot, np.ndarray] | None = None):
+        self.base = base
+        self.correction = correction
+        self.bump = bump
+
+    def __getattr__(self, name):  # start, end, fps, frame_times, rig, … come from the base trajectory
+        if name in ("base", "correction", "bump"):
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
+    def evaluate(self, times, order: int = 2):
+        out = list(self.base.evaluate(times, order))
+        if self.correction is not None:
+            for k, fk in enumerate(self.correction.evaluate(times, order)):
+                out[k] = out[k] + fk
+        if self.bump is not None:
+            slot, e = self.bump
+            shift = 0 if slot.kind == POSITION else 1
+            phi = slot.basis.evaluate(times, order + shift)[shift:]
+            if slot.kind != POSITION:
+                # normalise ψ so the bump changes the kinematic *velocity* at t_i by exactly e (ψ'(t_i) = φ''(t_i))
+                phi = phi / slot.basis.evaluate([slot.time], 2)[2, 0]
+            for k in range(order + 1):
+                out[k] = out[k] + phi[k].reshape(-1, *([1] * e.ndim)) * e
+        return tuple(out)
+
+    def positions(self, times):
+        return self.evaluate(times, order=0)[0]

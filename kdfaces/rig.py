@@ -92,7 +92,7 @@ class BlendshapeRig:
         if self.skeleton is not None and len(self.skeleton.weights) != len(n):
             raise KDInputError(f"rig {self.name!r}: skin weights for {len(self.skeleton.weights)} vertices, mesh has "
                                f"{len(n)}")
-        object.__setattr__(self, "_flat", self.deltas.reshape(len(self.deltas), -1).astype(np.float64))
+        object.__setattr__(self, "_flat", self.deltas.reshape(len(self.deltas), 3 * len(n)).astype(np.float64))
 
     @classmethod
     def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig") -> BlendshapeRig:

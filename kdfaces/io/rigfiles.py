@@ -64,17 +64,23 @@ def load_default_rig() -> BlendshapeRig:
 
 
 def load_rig(spec) -> BlendshapeRig:
-    """Load a rig from ``"default"``, an ``.npz`` file, an OBJ folder, or a folder with ``base.obj`` + ``*.target``."""
+    """Load a rig from ``"default"``, an ``.npz``, a glTF (``.gltf``/``.glb``), an OBJ folder, or a MakeHuman folder
+    (``base.obj`` + ``*.target``)."""
     if spec is None or str(spec) == "default":
         return load_default_rig()
     p = _require_file(spec)
     if p.is_file() and p.suffix == ".npz":
         return load_npz(p)
+    if p.is_file() and p.suffix in (".gltf", ".glb"):
+        from .gltf import load_gltf_rig
+
+        return load_gltf_rig(p)
     if p.is_dir():
         if list(p.glob("*.target")) or list(p.glob("targets/*.target")):
             return load_makehuman(p / "base.obj", p / "targets" if (p / "targets").is_dir() else p)
         return load_obj_folder(p)
-    raise KDInputError(f"{p}: expected an .npz rig, an OBJ folder or a MakeHuman folder (base.obj + .target files)")
+    raise KDInputError(f"{p}: expected an .npz or glTF rig, an OBJ folder or a MakeHuman folder (base.obj + .target "
+                       "files)")
 
 
 def load_npz(path) -> BlendshapeRig:

@@ -13,6 +13,9 @@ IKD solver never knows which it drives):
   place, tracking the trajectory;
 - ``observe(state) -> ndarray``: the quantity constraints and reports are measured on, shape (B, ...).
 
+A system may also offer ``prepare(trajectory, start_times, steps, h) -> None``; the simulate functions call it
+first with the window starts and the step count, so it can sample the trajectory on the whole step grid once.
+
 The window is rounded up to a whole number of steps, n = ceil(δ/h), so the KD state at t is exactly the state a
 full simulation started at t − n·h reaches at t (:func:`simulate_full` started at the shot start agrees with a
 window that reaches back to it).
@@ -57,6 +60,12 @@ def _check_times(trajectory, times: np.ndarray) -> None:
         raise KDInputError(f"times: {times[bad][0]:.6g} s is outside the shot [{start:.6g}, {end:.6g}] s")
 
 
+def _prepare(system, trajectory, start_times: np.ndarray, steps: int, h: float) -> None:
+    prepare = getattr(system, "prepare", None)
+    if prepare is not None:
+        prepare(trajectory, start_times, steps, h)
+
+
 def simulate_kd(system: KDSystem, trajectory, times, window: float, *, h: float = 1.0 / 25.0) -> np.ndarray:
     """KD states at ``times`` (T,) [s] with window δ = ``window`` [s] and step ``h`` [s] → ``observe`` of the batch.
 
@@ -69,6 +78,7 @@ def simulate_kd(system: KDSystem, trajectory, times, window: float, *, h: float 
     _check_times(trajectory, t)
     n = window_steps(window, h)
     t0 = t - n * h
+    _prepare(system, trajectory, t0, n, h)
     state = system.initial_state(trajectory, t0)
     for k in range(n):
         system.step(state, trajectory, t0 + k * h, h)
@@ -87,6 +97,7 @@ def simulate_full(system: KDSystem, trajectory, times, *, h: float = 1.0 / 25.0,
     k_out = np.round((t - s) / h).astype(np.int64)
     if (k_out < 0).any() or not np.allclose(s + k_out * h, t, rtol=0, atol=1e-9 * max(1.0, abs(t).max())):
         raise KDInputError(f"times: simulate_full needs times on the step grid start + k·h (h = {h} s)")
+    _prepare(system, trajectory, np.array([s]), int(k_out.max()), h)
     state = system.initial_state(trajectory, np.array([s]))
     out = [None] * len(t)
     order = np.argsort(k_out, kind="stable")

@@ -1,0 +1,135 @@
+"""The static face dynamics model: lumped masses, per-vertex PD gains, shape-matching clusters (paper §4.5).
+
+Equation of motion of vertex i (mass m_i, kinematic target x_K,i(t)), in the default *relative* convention:
+
+    m_i ẍ_i = kp_i (x_K,i − x_i) + kd_i (ẋ_K,i − ẋ_i) + shape matching
+
+The damper acts on the velocity relative to the kinematic velocity, so a face carried at constant velocity by
+the head stays on its kinematic pose. The paper's PD form damps the absolute velocity, −kd_i ẋ_i
+(``damping="absolute"``); on a moving head it lags the whole face by kd·v/kp.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import KDInputError, check_finite
+from .clusters import Clusters, ring_clusters
+from .gains import gains_from_settle_time
+
+__all__ = ["DAMPING_CONVENTIONS", "ROTATION_METHODS", "FaceModel", "vertex_areas"]
+
+DAMPING_CONVENTIONS = ("relative", "absolute")
+ROTATION_METHODS = ("svd3", "iterative")
+
+
+def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Barycentric lumped vertex areas (N,) [m²]: each triangle gives a third of its area to each corner."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    return np.bincount(f.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
+
+
+def _per_vertex(value, n: int, what: str) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.shape != (n,):
+        raise KDInputError(f"{what}: expected a scalar or shape ({n},), got {a.shape}")
+    check_finite(a, what)
+    return a
+
+
+@dataclass(frozen=True)
+class FaceModel:
+    """Everything about the face dynamics that does not change during a simulation.
+
+    Attributes:
+        mass: lumped vertex masses [kg], shape (N,), float64, all positive.
+        settle_time: per-vertex settle time t̂ [s], shape (N,), float64.
+        kp: stiffness per unit mass kp/m [1/s²], shape (N,), float64 (On the Beat eq. 4).
+        kd: damping per unit mass kd/m [1/s], shape (N,), float64.
+        damping_ratio: ζ, dimensionless.
+        clusters: shape-matching clusters (:class:`Clusters`).
+        alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
+        damping: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
+        diameter: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound).
+        rotation: how cluster rotations are fitted: "svd3" (polar part of A_pq from Warp's svd3, float64) or
+            "iterative" (Müller et al. 2016, warm-started from the previous step; several times faster).
+        rotation_iterations: fixed-point iterations per step for "iterative".
+    """
+
+    mass: np.ndarray
+    settle_time: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    damping_ratio: float
+    clusters: Clusters
+    alpha: float
+    damping: str
+    diameter: float
+    rotation: str = "svd3"
+    rotation_iterations: int = 2
+
+    def __post_init__(self):
+        n = len(self.mass)
+        if (self.mass <= 0).any() or not np.isfinite(self.mass).all():
+            raise KDInputError(f"mass: expected positive finite kilograms, got min {self.mass.min():.6g}")
+        if self.clusters.num_vertices != n:
+            raise KDInputError(f"clusters: built for {self.clusters.num_vertices} vertices, model has {n}")
+        if not 0.0 <= self.alpha <= 1.0:
+            raise KDInputError(f"alpha: expected shape-matching stiffness in [0, 1], got {self.alpha}")
+        if self.damping not in DAMPING_CONVENTIONS:
+            raise KDInputError(f"damping: expected one of {DAMPING_CONVENTIONS}, got {self.damping!r}")
+        if self.rotation not in ROTATION_METHODS:
+            raise KDInputError(f"rotation: expected one of {ROTATION_METHODS}, got {self.rotation!r}")
+        if self.rotation_iterations < 1:
+            raise KDInputError(f"rotation_iterations: expected an integer >= 1, got {self.rotation_iterations}")
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.mass)
+
+    @classmethod
+    def create(cls, vertices, faces, *, settle_time=0.3, damping_ratio: float = 1.0, alpha: float = 0.2,
+               rings: int = 2, cluster_centers="cover", areal_density: float = 10.0, mass=None,
+               damping: str = "relative", rotation: str = "svd3", rotation_iterations: int = 2) -> FaceModel:
+        """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3).
+
+        ``settle_time`` [s]: scalar or per-vertex (N,) map. ``mass`` [kg]: scalar (uniform) or (N,); default
+        vertex area × ``areal_density`` [kg/m²] (isolated vertices get the mean). ``alpha = 0`` switches shape
+        matching off; clusters are the ``rings``-rings around ``cluster_centers``: "all" vertices, "cover" (a
+        maximal independent set of the ring graph, so every vertex lies in a cluster with far fewer clusters), or
+        an index array.
+        """
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        n = len(v)
+        if mass is None:
+            if not (np.isfinite(areal_density) and areal_density > 0):
+                raise KDInputError(f"areal_density: expected positive kg/m², got {areal_density}")
+            a = vertex_areas(v, f) if len(f) else np.zeros(n)
+            a = np.where(a > 0, a, a[a > 0].mean() if (a > 0).any() else 1.0)
+            m = a * areal_density
+        else:
+            m = _per_vertex(mass, n, "mass")
+            if (m <= 0).any():
+                raise KDInputError(f"mass: expected positive kilograms, got {m.min():.6g}")
+        t = _per_vertex(settle_time, n, "settle_time")
+        kp, kd = gains_from_settle_time(t, damping_ratio=damping_ratio)
+        if alpha > 0 and len(f):
+            clusters = ring_clusters(f, n, rings=rings, centers=cluster_centers)
+        else:
+            clusters = Clusters.empty(n)
+        diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
+        return cls(mass=m, settle_time=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
+                   alpha=float(alpha), damping=damping, diameter=diameter, rotation=rotation,
+                   rotation_iterations=int(rotation_iterations))
+
+    @classmethod
+    def from_rig(cls, rig, **kwargs) -> FaceModel:
+        """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh."""
+        return cls.create(rig.neutral, rig.faces, **kwargs)

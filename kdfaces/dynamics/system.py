@@ -1,0 +1,273 @@
+"""FaceSystem: the face dynamics behind the KD protocol of :mod:`kdfaces.kd` (initial_state / step / observe).
+
+The kinematic trajectory is baked once per simulate call on the step grid (``prepare``), into Warp arrays of
+x_K, ẋ_K; each step then costs two kernel launches for the whole batch (cluster rotations, then goals + implicit
+PD). A batch may be split into chunks advanced by parallel threads (Warp CPU launches release the GIL).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from ..errors import KDInputError, SimulationBlowUpError
+from .kernels import cluster_frames_iterative, cluster_frames_svd, track_step
+from .model import FaceModel
+
+__all__ = ["FaceSystem", "FaceState", "TrajectoryBake"]
+
+_GRID_TOL = 1e-9
+#: η added to the normalised A_pq before svd3 (see :func:`~kdfaces.dynamics.kernels.cluster_frames`).
+ROTATION_REGULARIZATION = 1e-4
+
+
+class TrajectoryBake:
+    """x_K, ẋ_K of a trajectory sampled on a step grid, as float32 Warp arrays ``xk``, ``vk`` of shape (R, N) vec3.
+
+    Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` None): row r is the time
+    ``trajectory.start + (j_lo + r)·h``, read by every window that starts on that grid (frame times with h = 1/fps),
+    stride 1, and kept across simulate calls (a sweep over windows bakes once). Otherwise each member has its own
+    rows, interleaved time-major (stride B). Rows are appended on demand by :meth:`ensure`.
+    """
+
+    def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None):
+        self.trajectory, self.h, self.device = trajectory, float(h), device
+        self.member_times = member_times
+        self.j_lo = int(j_lo)
+        self.stride = 1 if member_times is None else len(member_times)
+        self.num_rows = 0
+        self.xk_np = np.zeros((0, trajectory.num_vertices, 3), np.float32)
+        self.vk_np = np.zeros_like(self.xk_np)
+        self.radius = 0.0
+
+    @staticmethod
+    def grid_index(trajectory, start_times: np.ndarray, h: float) -> np.ndarray | None:
+        """Grid indices j with start_times = trajectory.start + j·h, or None when some time is off that grid."""
+        origin = float(getattr(trajectory, "start", 0.0))
+        j = np.round((start_times - origin) / h)
+        scale = max(1.0, float(np.abs(start_times).max()))
+        return j.astype(np.int64) if np.allclose(origin + j * h, start_times, rtol=0, atol=_GRID_TOL * scale) \
+            else None
+
+    def times(self, r: np.ndarray) -> np.ndarray:
+        if self.member_times is None:
+            return float(getattr(self.trajectory, "start", 0.0)) + (self.j_lo + r) * self.h
+        return self.member_times[r % self.stride] + (r // self.stride) * self.h
+
+    def prepended(self, j_lo: int) -> TrajectoryBake:
+        """A new shared-grid bake starting at grid index ``j_lo`` < ``self.j_lo``, reusing this one's rows (states
+        that read this bake keep it)."""
+        new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo)
+        new.ensure(np.zeros(1, np.int32), self.j_lo - j_lo - 1)
+        new._append(self.xk_np, self.vk_np)
+        return new
+
+    def _append(self, x: np.ndarray, v: np.ndarray) -> None:
+        self.xk_np = np.concatenate([self.xk_np, x.astype(np.float32)])
+        self.vk_np = np.concatenate([self.vk_np, v.astype(np.float32)])
+        self.num_rows = len(self.xk_np)
+        self.xk = wp.array(self.xk_np, dtype=wp.vec3, device=self.device)
+        self.vk = wp.array(self.vk_np, dtype=wp.vec3, device=self.device)
+        self.radius = float(np.abs(self.xk_np).max())
+
+    def ensure(self, rows: np.ndarray, steps: int) -> None:
+        """Bake every row that members at ``rows`` read during steps 0..``steps``."""
+        need = int(rows.max()) + steps * self.stride + 1
+        if need <= self.num_rows:
+            return
+        self._append(*self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1))
+
+
+@dataclass
+class _Chunk:
+    members: slice
+    rows: wp.array | None
+    x: wp.array
+    v: wp.array
+    rot: wp.array
+    quat: wp.array
+    cen: wp.array
+    cen0: wp.array
+
+
+@dataclass
+class FaceState:
+    """A batch of B face states.
+
+    Attributes:
+        start_times: window start time of each member [s], shape (B,), float64.
+        steps: steps taken since the start.
+        bake: the baked trajectory the members read (None until the first step when not prepared).
+        rows: each member's bake row at its window start, shape (B,), int32.
+        chunks: slices of the batch, each with positions x [m] and velocities v [m/s], shape (b, N) vec3 float32,
+            per-cluster rotations (b, C) mat33 and their quaternions (b, C) quat (the warm start of the iterative
+            rotation fit; identity at the window start), and centroids (b, C) vec3 [m].
+    """
+
+    start_times: np.ndarray
+    bake: TrajectoryBake | None
+    rows: np.ndarray | None
+    chunks: list = field(default_factory=list)
+    steps: int = 0
+
+
+class FaceSystem:
+    """Shape-matching face dynamics (paper §4.5) implementing the KD protocol.
+
+    Args:
+        model: the static :class:`FaceModel`.
+        device: Warp device ("cpu" or "cuda:0").
+        threads: split batches into this many chunks stepped by parallel threads.
+        check_every: steps between blow-up checks (NaN/inf, or a vertex farther than ``blowup_factor`` face
+            diameters beyond the kinematic trajectory's extent); the final state is always checked.
+    """
+
+    def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
+                 blowup_factor: float = 10.0):
+        self.model = model
+        self.device = wp.get_device(device)
+        self.threads = max(1, int(threads))
+        self.check_every = max(1, int(check_every))
+        self.blowup_factor = float(blowup_factor)
+        c = model.clusters
+        d = self.device
+        self._offsets = wp.array(c.offsets, dtype=wp.int32, device=d)
+        self._members = wp.array(c.members, dtype=wp.int32, device=d)
+        self._voff = wp.array(c.vertex_offsets, dtype=wp.int32, device=d)
+        self._vcl = wp.array(c.vertex_clusters, dtype=wp.int32, device=d)
+        self._mass = wp.array(model.mass.astype(np.float32), dtype=float, device=d)
+        self._kp = wp.array(model.kp.astype(np.float32), dtype=float, device=d)
+        self._kd = wp.array(model.kd.astype(np.float32), dtype=float, device=d)
+        self._voff_none = wp.zeros(model.num_vertices + 1, dtype=wp.int32, device=d)  # no goals when α = 0
+        self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
+        self._pending = None  # (trajectory, start times, (bake, rows)) from the last prepare
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+
+    # --- KD protocol -------------------------------------------------------------------------------------------
+    def prepare(self, trajectory, start_times, steps: int, h: float) -> None:
+        """Bake x_K, ẋ_K for windows starting at ``start_times`` (B,) [s] and running ``steps`` steps of ``h``.
+
+        Windows on the shot's frame grid share one bake, reused by later calls with the same trajectory and h.
+        """
+        self._check_trajectory(trajectory)
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        self._pending = (trajectory, t0, self._bake_for(trajectory, t0, float(h)))
+        bake, rows = self._pending[2]
+        bake.ensure(rows, steps)
+
+    def _bake_for(self, trajectory, t0: np.ndarray, h: float):
+        j = TrajectoryBake.grid_index(trajectory, t0, h)
+        if j is None:
+            bake = TrajectoryBake(trajectory, h, self.device, member_times=t0)
+            return bake, np.arange(len(t0), dtype=np.int32)
+        old = self._bake
+        if old is None or old.trajectory is not trajectory or old.h != h:
+            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=int(j.min()))
+        elif j.min() < old.j_lo:
+            self._bake = old = old.prepended(int(j.min()))
+        return old, (j - old.j_lo).astype(np.int32)
+
+    def initial_state(self, trajectory, times) -> FaceState:
+        """States at ``times`` (B,) [s] on the kinematic trajectory: x = x_K(t), v = ẋ_K(t)."""
+        t0 = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        pending = self._pending
+        if pending is not None and pending[0] is trajectory and np.array_equal(pending[1], t0):
+            bake, rows = pending[2]
+            bake.ensure(rows, 0)
+            x0, v0 = bake.xk_np[rows], bake.vk_np[rows]
+        else:  # not prepared: bake on the first step, when h is known
+            self._check_trajectory(trajectory)
+            bake = rows = None
+            x0, v0 = (a.astype(np.float32) for a in trajectory.evaluate(t0, order=1))
+        B = len(t0)
+        parts = np.array_split(np.arange(B), min(self.threads, B))
+        C = self.model.clusters.num_clusters
+        d = self.device
+        state = FaceState(start_times=t0, bake=bake, rows=rows)
+        for p in parts:
+            state.chunks.append(_Chunk(
+                members=slice(int(p[0]), int(p[-1]) + 1),
+                rows=None if rows is None else wp.array(rows[p], dtype=wp.int32, device=d),
+                x=wp.array(x0[p], dtype=wp.vec3, device=d),
+                v=wp.array(v0[p], dtype=wp.vec3, device=d),
+                rot=wp.zeros((len(p), C), dtype=wp.mat33, device=d),
+                quat=wp.array(np.tile(np.array([0, 0, 0, 1], np.float32), (len(p), C, 1)), dtype=wp.quat, device=d),
+                cen=wp.zeros((len(p), C), dtype=wp.vec3, device=d),
+                cen0=wp.zeros((len(p), C), dtype=wp.vec3, device=d),
+            ))
+        return state
+
+    def step(self, state: FaceState, trajectory, times, h: float) -> None:
+        """Advance every member from ``times[b]`` to ``times[b] + h`` [s] (in place)."""
+        if state.bake is None:
+            state.bake, state.rows = self._bake_for(trajectory, state.start_times, float(h))
+            for ch in state.chunks:
+                ch.rows = wp.array(state.rows[ch.members], dtype=wp.int32, device=self.device)
+        bake = state.bake
+        if abs(h - bake.h) > _GRID_TOL * bake.h:
+            raise KDInputError(f"step h: {h} s differs from the {bake.h} s this state was prepared with")
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        expect = state.start_times[0] + state.steps * bake.h
+        if abs(t[0] - expect) > 1e-6 * max(1.0, abs(expect)):
+            raise KDInputError(f"times: step expected to start at {expect:.9g} s, got {t[0]:.9g} s")
+        bake.ensure(state.rows, state.steps + 1)
+        off0, off1 = state.steps * bake.stride, (state.steps + 1) * bake.stride
+        if self._pool is None or len(state.chunks) == 1:
+            for ch in state.chunks:
+                self._step_chunk(ch, bake, off0, off1)
+        else:
+            list(self._pool.map(lambda ch: self._step_chunk(ch, bake, off0, off1), state.chunks))
+        state.steps += 1
+        if state.steps % self.check_every == 0:
+            self._check(state)
+
+    def observe(self, state: FaceState) -> np.ndarray:
+        """Vertex positions of every member [m], shape (B, N, 3), float64."""
+        self._check(state)
+        return np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
+
+    # --- internals ---------------------------------------------------------------------------------------------
+    def _check_trajectory(self, trajectory) -> None:
+        n = getattr(trajectory, "num_vertices", None)
+        if n != self.model.num_vertices:
+            raise KDInputError(f"trajectory: has {n} vertices, the face model has {self.model.num_vertices}")
+
+    def _step_chunk(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int) -> None:
+        m = self.model
+        b = ch.x.shape[0]
+        d = self.device
+        if m.alpha > 0 and m.clusters.num_clusters:
+            common = [ch.x, bake.xk, ch.rows, off0, self._offsets, self._members, self._mass]
+            if m.rotation == "svd3":
+                wp.launch(cluster_frames_svd, dim=(b, m.clusters.num_clusters), device=d,
+                          inputs=[*common, ROTATION_REGULARIZATION], outputs=[ch.rot, ch.cen, ch.cen0])
+            else:
+                wp.launch(cluster_frames_iterative, dim=(b, m.clusters.num_clusters), device=d,
+                          inputs=[*common, m.rotation_iterations, ch.quat], outputs=[ch.rot, ch.cen, ch.cen0])
+            voff = self._voff
+        else:
+            voff = self._voff_none
+        wp.launch(track_step, dim=(b, m.num_vertices), device=d,
+                  inputs=[bake.xk, bake.vk, ch.rows, off0, off1, voff, self._vcl, ch.rot, ch.cen, ch.cen0,
+                          self._kp, self._kd, float(m.alpha), float(bake.h), int(m.damping == "relative")],
+                  outputs=[ch.x, ch.v])
+
+    def _check(self, state: FaceState) -> None:
+        """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""
+        radius = state.bake.radius if state.bake is not None else 0.0
+        bound = radius + self.blowup_factor * self.model.diameter
+        for ch in state.chunks:
+            for name, arr in (("position", ch.x), ("velocity", ch.v)):
+                a = arr.numpy()
+                bad = ~np.isfinite(a).all(axis=(1, 2))
+                if name == "position":
+                    bad |= np.abs(np.where(np.isfinite(a), a, 0.0)).max(axis=(1, 2)) > bound
+                if bad.any():
+                    b = int(np.argmax(bad)) + ch.members.start
+                    t = state.start_times[b] + state.steps * (state.bake.h if state.bake is not None else 0.0)
+                    raise SimulationBlowUpError(
+                        f"face simulation blew up: {name} not finite or beyond {bound:.3g} m at t = {t:.6g} s "
+                        f"(batch member {b}, step {state.steps})")

@@ -140,10 +140,16 @@ class BlendshapeRig:
         if w2.shape[1] != self.num_shapes:
             raise KDInputError(f"weights: expected {self.num_shapes} columns (one per shape), got {w2.shape[1]}")
         check_finite(w2, "weights")
-        x = (w2 @ self._flat).reshape(len(w2), -1, 3) + self.neutral
+        x = self.blend_offsets(w2) + self.neutral
         return x[0] if single else x
 
     def blend_offsets(self, weights) -> np.ndarray:
-        """Σ w_k Δ_k [m] (no neutral) for weights (T, K) → (T, N, 3); used for derivatives."""
+        """Σ w_k Δ_k [m] (no neutral) for weights (T, K) → (T, N, 3); used for derivatives.
+
+        Shapes whose weight is zero at every time are skipped (weight derivatives are mostly zero).
+        """
         w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-        return (w2 @ self._flat).reshape(len(w2), -1, 3)
+        nz = np.flatnonzero(np.abs(w2).max(axis=0) > 0)
+        if len(nz) == 0:
+            return np.zeros((len(w2), self.num_vertices, 3))
+        return (w2[:, nz] @ self._flat[nz]).reshape(len(w2), -1, 3)

@@ -116,21 +116,24 @@ def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
         transforms: triplet of joint world transforms (T, J, 4, 4) from :func:`joint_transforms`.
         y, dy, ddy: blend-shape positions [m] and their time derivatives, each (T, N, 3).
     Returns:
-        x, ẋ, ẍ, each (T, N, 3): x = Σ_j w_ij G_j ỹ + (1 − Σ_j w_ij) y, differentiated by the product rule.
+        x, ẋ, ẍ, each (T, N, 3): x = Σ_j w_ij G_j ỹ + (1 − Σ_j w_ij) y, differentiated by the product rule:
+        ẋ = Σ_j w_ij (Ġ_j ỹ + G_j ẏ) + r ẏ,  ẍ = Σ_j w_ij (G̈_j ỹ + 2 Ġ_j ẏ + G_j ÿ) + r ÿ  (r = 1 − Σ_j w_ij).
     """
     W = skeleton.weights
-    rest = 1.0 - W.sum(axis=1)
-    G, dG, ddG = (g[:, :, :3, :] for g in transforms)  # (T, J, 3, 4)
-    M = np.einsum("nj,tjab->tnab", W, G)
-    M[:, :, 0, 0] += rest
-    M[:, :, 1, 1] += rest
-    M[:, :, 2, 2] += rest
-    x = np.einsum("tnab,tnb->tna", M[..., :3], y) + M[..., 3]
+    rest = (1.0 - W.sum(axis=1))[None, :, None]
+    Wt = W.T[None, :, :, None]  # (1, J, N, 1)
+
+    def apply(G, v, affine: bool):
+        """Σ_j w_ij (R_j v_i [+ t_j]) for (T, J, 4, 4) transforms and (T, N, 3) vectors, by batched matmul."""
+        P = np.matmul(v[:, None], np.swapaxes(G[:, :, :3, :3], -1, -2))  # (T, J, N, 3)
+        if affine:
+            P += G[:, :, None, :3, 3]
+        return (P * Wt).sum(axis=1)
+
+    G, dG, ddG = transforms
+    x = apply(G, y, True) + rest * y
     if dy is None:
         return x, None, None
-    dM = np.einsum("nj,tjab->tnab", W, dG)
-    ddM = np.einsum("nj,tjab->tnab", W, ddG)
-    dx = np.einsum("tnab,tnb->tna", dM[..., :3], y) + dM[..., 3] + np.einsum("tnab,tnb->tna", M[..., :3], dy)
-    ddx = (np.einsum("tnab,tnb->tna", ddM[..., :3], y) + ddM[..., 3]
-           + 2 * np.einsum("tnab,tnb->tna", dM[..., :3], dy) + np.einsum("tnab,tnb->tna", M[..., :3], ddy))
+    dx = apply(dG, y, True) + apply(G, dy, False) + rest * dy
+    ddx = apply(ddG, y, True) + 2.0 * apply(dG, dy, False) + apply(G, ddy, False) + rest * ddy
     return x, dx, ddx

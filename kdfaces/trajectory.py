@@ -7,6 +7,7 @@ and head joints, with exact derivatives from the curves (no finite differences).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,10 +66,14 @@ class KinematicTrajectory:
     Time ranges outside the shot hold the end poses (curves are clamped), so KD windows may reach before the start.
     """
 
-    def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, chunk: int = 16):
+    def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, chunk: int = 16,
+                 cache_bytes: int = 256 * 2**20):
         self.rig = rig
         self.animation = animation
         self.chunk = int(chunk)
+        # evaluated samples, keyed by time in ns: KD windows, IKD iterations and scrubbing re-read the same grid
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cache_max = max(1, int(cache_bytes) // (3 * rig.num_vertices * 3 * 8))
         self._tracks = [(np.asarray(rig.shape_indices(t.names, where=f"animation {animation.name!r}")), t.curve)
                         for t in animation.tracks]
         if animation.skeleton.drives and rig.skeleton is None:
@@ -110,13 +115,29 @@ class KinematicTrajectory:
         check_finite(t, "trajectory times")
         if order not in (0, 1, 2):
             raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
-        parts = [self._evaluate_chunk(t[i:i + self.chunk], order) for i in range(0, len(t), self.chunk)]
-        return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+        keys = np.round(t * 1e9).astype(np.int64).tolist()
+        if len(set(keys)) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
+            parts = [self._evaluate_chunk(t[i:i + self.chunk]) for i in range(0, len(t), self.chunk)]
+            return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+        first = {}
+        for k, tk in zip(keys, t.tolist()):
+            if k not in self._cache:
+                first.setdefault(k, tk)  # times within 1 ns share a sample, evaluated at the first one asked for
+        missing = list(first)
+        for i in range(0, len(missing), self.chunk):
+            part = np.asarray([first[k] for k in missing[i:i + self.chunk]], dtype=np.float64)
+            x, v, a = self._evaluate_chunk(part)
+            for j, k in enumerate(missing[i:i + self.chunk]):
+                self._cache[k] = np.stack([x[j], v[j], a[j]])
+                if len(self._cache) > self._cache_max:
+                    self._cache.popitem(last=False)
+        samples = np.stack([self._cache[k][: order + 1] for k in keys], axis=1)
+        return tuple(samples[o] for o in range(order + 1))
 
     def positions(self, times) -> np.ndarray:
         return self.evaluate(times, order=0)[0]
 
-    def _evaluate_chunk(self, t, order):
+    def _evaluate_chunk(self, t):
         w = self.weights(t, 2)
         y = self.rig.blend(w[0])
         dy = self.rig.blend_offsets(w[1])
@@ -125,4 +146,4 @@ class KinematicTrajectory:
         if skel is not None and self.animation.skeleton.drives:
             G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
-        return (y, dy, ddy)[: order + 1]
+        return y, dy, ddy

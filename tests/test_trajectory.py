@@ -72,3 +72,15 @@ def test_unknown_joint(default_rig):
     anim = FaceAnimation(skeleton=head_turn({"skull": 1.0}))
     with pytest.raises(KDInputError, match="unknown joint 'skull'"):
         KinematicTrajectory(default_rig, anim).evaluate([0.1])
+
+
+def test_sample_cache_returns_the_same_values(default_rig):
+    anim = demo_animation()
+    cached = KinematicTrajectory(default_rig, anim)
+    tiny = KinematicTrajectory(default_rig, anim, cache_bytes=1)  # holds one sample: evaluates directly
+    t = np.array([0.6, 0.64, 0.6, 5.0])
+    first = cached.evaluate(t)
+    again = cached.evaluate(t[::-1])
+    for a, b, c in zip(first, again, tiny.evaluate(t)):
+        np.testing.assert_array_equal(a, b[::-1])
+        np.testing.assert_allclose(a, c, rtol=1e-13, atol=1e-15)  # BLAS blocking differs with the batch

@@ -115,6 +115,8 @@ def read_livelinkface(path) -> LiveLinkTake:
     if len(times) < 2:
         raise KDInputError(f"{p}: need at least two distinct timecodes")
     rate = float(1.0 / np.median(np.diff(times)))
+    if abs(rate - round(rate)) < 1e-3 * rate:  # timecodes are rounded to the ms: snap to the nominal rate
+        rate = float(round(rate))
     return LiveLinkTake(path=p, times=times - times[0], weights=np.clip(weights, 0.0, 1.0), head=head,
                         rate_hz=rate, timecode_rate=tc_rate, rows_read=len(rows))
 

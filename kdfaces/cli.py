@@ -15,8 +15,9 @@ __all__ = ["main"]
 
 
 def _demo(args) -> dict:
-    from .demo import demo_animation
+    from .demo import demo_animation, demo_kd
     from .io.rigfiles import load_rig
+    from .kd_report import write_kd_report
     from .render import filmstrip
     from .summary import write_summary
     from .trajectory import KinematicTrajectory
@@ -26,16 +27,20 @@ def _demo(args) -> dict:
     anim = demo_animation()
     traj = KinematicTrajectory(rig, anim)
     times = anim.frame_times
-    strip_times = np.array([0.0, 0.8, 1.1, 2.6, 4.1, 5.0])
-    x = traj.positions(strip_times)
-    outputs = [filmstrip(out / "filmstrip_kinematic.png", rig.faces, {"kinematic": x}, strip_times,
-                         title=f"{rig.name}: kinematic demo")]
+    kd, report, kd_summary = demo_kd(rig, traj, threads=args.threads)
+    strip = np.array([0, 20, 28, 65, 103, 125])  # frames: rest, after the head turn, blink, smile, brow, nod
+    strip_times = times[strip]
+    rows = {"kinematic": traj.positions(strip_times), f"KD (δ = {kd_summary['window_s']:.2f} s)": kd[strip]}
+    outputs = [filmstrip(out / "filmstrip_kinematic_kd.png", rig.faces, rows, strip_times,
+                         title=f"{rig.name}: kinematic | KD demo"),
+               *write_kd_report(out, report)]
     summary = {
         "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes},
         "fps": anim.fps,
         "frames": len(times),
         "duration_s": anim.duration,
         "outputs": [str(p.relative_to(out)) for p in outputs],
+        "kd": kd_summary,
     }
     write_summary(out, summary)
     return summary
@@ -48,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="kd-out/demo", help="output folder (default kd-out/demo)")
     demo.add_argument("--rig", default="default", help="rig: 'default', an .npz, or an OBJ folder")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
     demo.set_defaults(func=_demo)
     return ap
 

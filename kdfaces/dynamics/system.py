@@ -41,7 +41,7 @@ class TrajectoryBake:
         self.num_rows = 0
         self.xk_np = np.zeros((0, trajectory.num_vertices, 3), np.float32)
         self.vk_np = np.zeros_like(self.xk_np)
-        self.radius = 0.0
+        self.radius = self.extent = 0.0
 
     @staticmethod
     def grid_index(trajectory, start_times: np.ndarray, h: float) -> np.ndarray | None:
@@ -66,12 +66,19 @@ class TrajectoryBake:
         return new
 
     def _append(self, x: np.ndarray, v: np.ndarray) -> None:
+        bad = ~(np.isfinite(x).all(axis=(1, 2)) & np.isfinite(v).all(axis=(1, 2)))
+        if bad.any():
+            t = self.times(np.arange(self.num_rows, self.num_rows + len(x)))[np.argmax(bad)]
+            raise KDInputError(f"trajectory: x_K or its velocity is not finite at t = {t:.6g} s")
         self.xk_np = np.concatenate([self.xk_np, x.astype(np.float32)])
         self.vk_np = np.concatenate([self.vk_np, v.astype(np.float32)])
         self.num_rows = len(self.xk_np)
         self.xk = wp.array(self.xk_np, dtype=wp.vec3, device=self.device)
         self.vk = wp.array(self.vk_np, dtype=wp.vec3, device=self.device)
         self.radius = float(np.abs(self.xk_np).max())
+        # how far the trajectory reaches: its extent, or where its fastest vertex gets in a second
+        self.extent = max(float(np.ptp(self.xk_np.reshape(-1, 3), axis=0).max()),
+                          float(np.abs(self.vk_np).max()) * 1.0)
 
     def ensure(self, rows: np.ndarray, steps: int) -> None:
         """Bake every row that members at ``rows`` read during steps 0..``steps``."""
@@ -122,7 +129,7 @@ class FaceSystem:
         device: Warp device ("cpu" or "cuda:0").
         threads: split batches into this many chunks stepped by parallel threads.
         check_every: steps between blow-up checks (NaN/inf, or a vertex farther than ``blowup_factor`` face
-            diameters beyond the kinematic trajectory's extent); the final state is always checked.
+            diameters, or extents of the baked trajectory, beyond its reach); the final state is always checked.
     """
 
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
@@ -257,8 +264,9 @@ class FaceSystem:
 
     def _check(self, state: FaceState) -> None:
         """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""
-        radius = state.bake.radius if state.bake is not None else 0.0
-        bound = radius + self.blowup_factor * self.model.diameter
+        bake = state.bake
+        radius, extent = (bake.radius, bake.extent) if bake is not None else (0.0, 0.0)
+        bound = radius + self.blowup_factor * max(self.model.diameter, extent)
         for ch in state.chunks:
             for name, arr in (("position", ch.x), ("velocity", ch.v)):
                 a = arr.numpy()

@@ -2,7 +2,7 @@
 
 Outputs (all written atomically):
 
-- ``filmstrip.png`` — kinematic | KD | IKD rows at a few frames (evenly spaced, plus each constraint's frame);
+- ``filmstrip.png`` — kinematic | KD | IKD rows at a few times (every constraint time, plus evenly spaced ones);
 - ``heatmap.png`` — per-vertex |x_KD − x_K| in mm with a colour bar, same frames (``heatmap_ikd.png``: the same
   for |x_IKD − x_K|, with its own colour range);
 - ``constraints.png`` — each constraint's frame before (KD) and after (IKD) the solve, target (green) vs reached
@@ -28,16 +28,19 @@ from .markers import constraint_panel
 from .movie import render_movie
 from .render import filmstrip
 
-__all__ = ["strip_frames", "render_shot", "add_render_parser"]
+__all__ = ["still_states", "render_shot", "add_render_parser"]
 
 
-def strip_frames(times, constraint_times=(), *, count: int = 6) -> np.ndarray:
-    """Frame indices for stills: ``count`` evenly spaced over ``times`` (F,) [s] plus the frame nearest each
-    constraint time [s], sorted and unique."""
+def still_states(run, times) -> dict[str, np.ndarray]:
+    """Kinematic, KD and (when solved) IKD states (T, N, 3) [m] at ``times`` (T,) [s], simulated history-free
+    at exactly those times (constraint times need not be frames)."""
     t = np.asarray(times, dtype=np.float64)
-    even = np.linspace(0, len(t) - 1, min(count, len(t))).round().astype(np.int64)
-    near = [int(np.abs(t - tc).argmin()) for tc in constraint_times]
-    return np.unique(np.concatenate([even, np.asarray(near, dtype=np.int64)]))
+    traj = run.shot.trajectory
+    h = run.shot.step
+    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, h=h)}
+    if run.ikd_result is not None:
+        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, h=h)
+    return rows
 
 
 def _constraint_states(run, constraints, trajectory) -> list[tuple[np.ndarray, np.ndarray | None]]:
@@ -56,16 +59,17 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
 
     Args:
         run: a ``ShotRun``-like object (see the module docstring); ``ikd`` may be None (no constraints).
-        frames: evenly spaced stills in the filmstrip and heat map (constraint frames are added).
+        frames: stills in the filmstrip and heat map: every constraint time, filled up with evenly spaced times.
         movie: also write the movie; ``movie_format`` "mp4" (default, GIF fallback) or "gif".
         exports: point-cache kinds (``"usd"``, ``"usda"``, ``"pc2"``) of the final trajectory (IKD, else KD).
         progress: tqdm bar for the movie (default: when stderr is a terminal).
 
     Returns:
-        A summary dict: outputs (relative to ``out``), frame indices of the stills, deviation maxima [mm], the
+        A summary dict: outputs (relative to ``out``), the still times [s], deviation maxima [mm], the
         median render time per movie frame [s].
     """
     from .io.export import export_trajectory
+    from .run import strip_times
 
     out = Path(out)
     shot = run.shot
@@ -73,36 +77,38 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     times = np.asarray(run.times, dtype=np.float64)
     ikd_result = run.ikd_result
     constraints = list(ikd_result.constraints) if ikd_result is not None else []
-    idx = strip_frames(times, [c.time for c in constraints], count=frames)
-    rows = {"kinematic": run.kinematic, "KD": run.kd}
-    if run.ikd is not None:
-        rows["IKD"] = run.ikd
+    t = strip_times(run, count=frames)
+    stills = still_states(run, t)
     reference = run.kinematic[0]
-    outputs = [filmstrip(out / "filmstrip.png", rig.faces, {k: v[idx] for k, v in rows.items()}, times[idx],
-                         reference=reference, title=f"{shot.name}: kinematic | KD | IKD")]
-    outputs.append(heatmap_strip(out / "heatmap.png", rig.faces, {"KD": run.kd[idx]}, run.kinematic[idx],
-                                 times[idx], title=f"{shot.name}: KD deviation from the kinematic pose"))
-    if run.ikd is not None:  # its own colour range: the IKD edit is usually much larger than the follow-through
-        outputs.append(heatmap_strip(out / "heatmap_ikd.png", rig.faces, {"IKD": run.ikd[idx]}, run.kinematic[idx],
-                                     times[idx], title=f"{shot.name}: IKD deviation from the kinematic pose"))
+    outputs = [filmstrip(out / "filmstrip.png", rig.faces, stills, t, reference=reference,
+                         title=f"{shot.name}: {' | '.join(stills)}")]
+    outputs.append(heatmap_strip(out / "heatmap.png", rig.faces, {"KD": stills["KD"]}, stills["kinematic"], t,
+                                 title=f"{shot.name}: KD deviation from the kinematic pose"))
+    if "IKD" in stills:  # its own colour range: the IKD edit is usually much larger than the follow-through
+        outputs.append(heatmap_strip(out / "heatmap_ikd.png", rig.faces, {"IKD": stills["IKD"]},
+                                     stills["kinematic"], t,
+                                     title=f"{shot.name}: IKD deviation from the kinematic pose"))
     if constraints:
         panel_rows = {"KD (before)": _constraint_states(run, constraints, shot.trajectory),
                       "IKD (after)": _constraint_states(run, constraints, ikd_result.trajectory)}
         outputs.append(constraint_panel(out / "constraints.png", rig.faces, constraints, panel_rows, h=shot.step,
                                         reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)"))
+    rows = {"kinematic": run.kinematic, "KD": run.kd}
+    if run.ikd is not None:
+        rows["IKD"] = run.ikd
+    fps = float(getattr(shot.animation, "fps", 1.0 / shot.step))
     frame_s = []
     if movie:
-        fps = float(getattr(shot.animation, "fps", 1.0 / shot.step))
         outputs.append(render_movie(out / "movie", rig.faces, rows, times, fps=fps, reference=reference,
                                     progress=progress, format=movie_format, timings=frame_s))
     final = run.ikd if run.ikd is not None else run.kd
     for kind in dict.fromkeys(exports):
-        outputs.append(export_trajectory(out, final, times, kind=kind, faces=rig.faces, name=shot.name))
+        outputs.append(export_trajectory(out, final, times, kind=kind, faces=rig.faces, fps=fps, name=shot.name))
     return {
         "shot": shot.name,
         "frames": len(times),
         "window_s": float(run.window_s),
-        "still_frames": idx.tolist(),
+        "still_times_s": t.tolist(),
         "max_deviation_mm": {k: float(1e3 * np.linalg.norm(rows[k] - run.kinematic, axis=-1).max())
                              for k in rows if k != "kinematic"},
         "render_s_per_movie_frame_median": float(np.median(frame_s)) if frame_s else None,
@@ -138,7 +144,7 @@ def add_render_parser(subparsers) -> None:
     ap.add_argument("shot", help="the shot file (TOML)")
     ap.add_argument("--out", help="output folder (default kd-out/<shot file stem>)")
     ap.add_argument("--window", type=float, help="KD window δ [s] (default: the shot's)")
-    ap.add_argument("--frames", type=int, default=6, help="evenly spaced stills (constraint frames are added)")
+    ap.add_argument("--frames", type=int, default=6, help="stills: constraint times, filled up to this many")
     ap.add_argument("--no-movie", action="store_true", help="skip the movie")
     ap.add_argument("--movie-format", choices=("mp4", "gif"), help="movie format (default mp4, GIF fallback)")
     add_export_option(ap)

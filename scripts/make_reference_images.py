@@ -1,0 +1,67 @@
+"""Regenerate the reference images of the image tests (tests/reference/*.png).
+
+Run after a deliberate change of the renderer's look (camera, lighting, colours, viewer layout), look at the
+PNGs, and commit them:
+
+    .venv/bin/python scripts/make_reference_images.py
+
+Every reference is kinematic (rig + renderer only), so tuning the dynamics never invalidates them.
+``render_references`` is also what tests/test_render.py calls to compare a fresh render with the stored one.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+REFERENCE_DIR = Path(__file__).resolve().parents[1] / "tests" / "reference"
+REFERENCE_SHOT = REFERENCE_DIR / "shot.toml"
+SIZE = (200, 240)
+
+
+def render_references() -> dict[str, np.ndarray]:
+    """name → RGB image (H, W, 3) uint8 of each reference render."""
+    from kdfaces.heatmap import HEAT_CMAP, deviation_mm, heat_clim
+    from kdfaces.markers import constraint_markers
+    from kdfaces.render import FaceRenderer
+    from kdfaces.shot import load_shot
+    from kdfaces.viewer import ShotViewer
+
+    shot = load_shot(REFERENCE_SHOT)
+    rig = shot.rig
+    pose = shot.trajectory.positions([0.3])[0]  # jaw open, head turned 25°
+    target = shot.constraints()[0]
+    images = {}
+    with FaceRenderer(rig.faces, rig.neutral, size=SIZE) as r:
+        images["neutral"] = r.render(rig.neutral)
+        images["pose_markers"] = r.render(pose, markers=constraint_markers(target, pose, max_points=40))
+        dev = deviation_mm(pose, rig.neutral)
+        images["heat"] = r.render(rig.neutral, dev, clim=heat_clim(dev), cmap=HEAT_CMAP)
+    viewer = ShotViewer(shot, off_screen=True, size=(320, 240))
+    try:
+        viewer.set_mode("kinematic")
+        viewer.set_frame(7)
+        viewer.plotter.render()
+        images["viewer_kinematic"] = np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
+    finally:
+        viewer.close()
+    return images
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=REFERENCE_DIR, help="folder for the PNGs (default tests/reference)")
+    args = ap.parse_args(argv)
+    from PIL import Image
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, img in render_references().items():
+        Image.fromarray(img).save(args.out / f"{name}.png", optimize=True)
+        print(f"wrote {args.out / name}.png {img.shape[1]}×{img.shape[0]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

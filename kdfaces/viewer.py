@@ -83,6 +83,7 @@ class ShotViewer:
         self.damping_ratio = float(shot.dynamics["damping_ratio"])
         self._constraints = shot.constraints()
         self.sigma = _initial_width(self._constraints)
+        self._sigma_set = False  # until the slider moves, every constraint keeps the shot's own width
         self._rebuild_system()
         if window is None:
             w = shot.dynamics["window_s"]
@@ -111,7 +112,9 @@ class ShotViewer:
         self.system = FaceSystem(model, device=self.device)
 
     def constraints(self) -> list:
-        """The shot's constraints with the viewer's correction width σ."""
+        """The shot's constraints; once the width slider moved, all with the viewer's correction width σ."""
+        if not self._sigma_set:
+            return list(self._constraints)
         return [with_width(c, self.sigma) for c in self._constraints]
 
     def state(self, frame: int | None = None, mode: str | None = None) -> np.ndarray:
@@ -161,11 +164,15 @@ class ShotViewer:
         self._parameters_changed(rebuild=False)
 
     def set_sigma(self, value) -> None:
-        """Correction-width slider: σ [s] of every constraint's bell (takes effect at the next IKD solve)."""
+        """Correction-width slider: σ [s] of every constraint's bell (takes effect at the next IKD solve).
+
+        Until it is first set, each constraint keeps the width of its shot file (the slider starts at the first's).
+        """
         v = float(value)
         if not v > 0:
             raise KDInputError(f"correction width: expected positive seconds, got {value}")
         self.sigma = v
+        self._sigma_set = True
         self._parameters_changed(rebuild=False)
 
     def _parameters_changed(self, *, rebuild: bool) -> None:
@@ -252,11 +259,11 @@ class ShotViewer:
         self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
         self._sliders = {}
         if widgets:
-            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end")
+            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
             n = len(self.times)
             self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, n - 1), value=0, title="frame",
                                                           pointa=(0.25, 0.08), pointb=(0.95, 0.08),
-                                                          interaction_event="always", fmt="%.0f",
+                                                          interaction_event="always", fmt="%.0f", style="modern",
                                                           title_height=0.02)
             specs = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time, "settle time [s]"),
                      ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),

@@ -82,6 +82,7 @@ def test_parameter_sliders(viewer, shot):
     viewer.set_settle_time(0.3)
     viewer.set_damping_ratio(0.3)
     np.testing.assert_allclose(viewer.points, base, atol=ATOL)
+    assert viewer.constraints() == viewer._constraints  # the shot's own widths until the slider moves
     viewer.set_sigma(0.15)
     assert [c.basis.sigma for c in viewer.constraints()] == [0.15]
     viewer.set_sigma(0.2)

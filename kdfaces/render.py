@@ -74,6 +74,7 @@ class FaceRenderer:
         self.plotter.set_background("white")
         self._style = None
         self.actor = None
+        self._label = None
         self._set_style(("plain",))
         lo, hi = ref.min(axis=0), ref.max(axis=0)
         center = 0.5 * (lo + hi)
@@ -128,7 +129,12 @@ class FaceRenderer:
                                          point_size=m.size_px, render_points_as_spheres=True)
                  for m in markers]
         if label:
-            extra.append(self.plotter.add_text(label, position=(6, self.size[1] - 22), font_size=10, color="black"))
+            if self._label is None:  # one text actor, re-used: adding one per frame costs more than the render
+                self._label = self.plotter.add_text(label, position=(6, self.size[1] - 22), font_size=10,
+                                                    color="black")
+            self._label.SetInput(label)
+        if self._label is not None:
+            self._label.SetVisibility(bool(label))
         self.plotter.render()
         img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3].copy()
         for a in extra:
@@ -139,6 +145,8 @@ class FaceRenderer:
         """The silhouette of the mesh at ``points`` (N, 3) [m]: a boolean image (H, W), True where the mesh is."""
         self.mesh.points = check_positions(points, self.num_vertices, "points")
         self._set_style(("mask",))
+        if self._label is not None:
+            self._label.SetVisibility(False)
         self.plotter.render()
         img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
         return (np.abs(img.astype(np.int16) - np.array(_BACKGROUND)).max(axis=-1) > 127)

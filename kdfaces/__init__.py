@@ -16,3 +16,14 @@ __all__ = [
     "load_default_rig", "load_rig", "save_npz", "save_obj_folder", "BlendshapeRig", "Skeleton", "JointDrive",
     "SkeletonAnimation", "FaceAnimation", "KinematicTrajectory", "ShapeTrack",
 ]
+
+# face kinodynamics (§3, §4.5, §5.2)
+from .dynamics import FaceModel, FaceSystem, soft_tissue_settle_map  # noqa: E402
+from .kd import simulate_full, simulate_kd  # noqa: E402
+from .kd_report import kd_error_report, write_kd_report  # noqa: E402
+from .window import automatic_window, window_1d  # noqa: E402
+
+__all__ += [
+    "FaceModel", "FaceSystem", "soft_tissue_settle_map", "simulate_full", "simulate_kd", "kd_error_report",
+    "write_kd_report", "automatic_window", "window_1d",
+]

@@ -39,9 +39,23 @@ class TrajectoryBake:
         self.j_lo = int(j_lo)
         self.stride = 1 if member_times is None else len(member_times)
         self.num_rows = 0
-        self.xk_np = np.zeros((0, trajectory.num_vertices, 3), np.float32)
-        self.vk_np = np.zeros_like(self.xk_np)
-        self.radius = self.extent = 0.0
+        n = trajectory.num_vertices
+        self._x = np.zeros((0, n, 3), np.float32)  # host copies with spare capacity; rows [0, num_rows) are valid
+        self._v = np.zeros_like(self._x)
+        self.xk = wp.zeros((0, n), dtype=wp.vec3, device=device)
+        self.vk = wp.zeros((0, n), dtype=wp.vec3, device=device)
+        self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self.radius = self.extent = self._vmax = 0.0
+
+    @property
+    def xk_np(self) -> np.ndarray:
+        """Baked x_K [m], shape (R, N, 3), float32 (host)."""
+        return self._x[: self.num_rows]
+
+    @property
+    def vk_np(self) -> np.ndarray:
+        """Baked ẋ_K [m/s], shape (R, N, 3), float32 (host)."""
+        return self._v[: self.num_rows]
 
     @staticmethod
     def grid_index(trajectory, start_times: np.ndarray, h: float) -> np.ndarray | None:
@@ -70,15 +84,27 @@ class TrajectoryBake:
         if bad.any():
             t = self.times(np.arange(self.num_rows, self.num_rows + len(x)))[np.argmax(bad)]
             raise KDInputError(f"trajectory: x_K or its velocity is not finite at t = {t:.6g} s")
-        self.xk_np = np.concatenate([self.xk_np, x.astype(np.float32)])
-        self.vk_np = np.concatenate([self.vk_np, v.astype(np.float32)])
-        self.num_rows = len(self.xk_np)
-        self.xk = wp.array(self.xk_np, dtype=wp.vec3, device=self.device)
-        self.vk = wp.array(self.vk_np, dtype=wp.vec3, device=self.device)
-        self.radius = float(np.abs(self.xk_np).max())
+        r0, r1 = self.num_rows, self.num_rows + len(x)
+        if r1 > len(self._x):  # grow geometrically, so appending a row at a time stays O(rows appended)
+            cap = max(r1, 2 * len(self._x))
+            self._x = np.concatenate([self._x[:r0], np.zeros((cap - r0, *x.shape[1:]), np.float32)])
+            self._v = np.concatenate([self._v[:r0], np.zeros((cap - r0, *x.shape[1:]), np.float32)])
+            xk, vk = (wp.zeros((cap, x.shape[1]), dtype=wp.vec3, device=self.device) for _ in range(2))
+            if r0:
+                wp.copy(xk, self.xk, count=r0 * x.shape[1])
+                wp.copy(vk, self.vk, count=r0 * x.shape[1])
+            self.xk, self.vk = xk, vk
+        self._x[r0:r1] = x
+        self._v[r0:r1] = v
+        self.xk[r0:r1].assign(self._x[r0:r1])
+        self.vk[r0:r1].assign(self._v[r0:r1])
+        self.num_rows = r1
+        flat = self._x[r0:r1].reshape(-1, 3)
+        self._lo, self._hi = np.minimum(self._lo, flat.min(axis=0)), np.maximum(self._hi, flat.max(axis=0))
+        self._vmax = max(self._vmax, float(np.abs(self._v[r0:r1]).max()))
+        self.radius = float(np.abs(np.concatenate([self._lo, self._hi])).max())
         # how far the trajectory reaches: its extent, or where its fastest vertex gets in a second
-        self.extent = max(float(np.ptp(self.xk_np.reshape(-1, 3), axis=0).max()),
-                          float(np.abs(self.vk_np).max()) * 1.0)
+        self.extent = max(float((self._hi - self._lo).max()), self._vmax * 1.0)
 
     def ensure(self, rows: np.ndarray, steps: int) -> None:
         """Bake every row that members at ``rows`` read during steps 0..``steps``."""
@@ -98,6 +124,7 @@ class _Chunk:
     quat: wp.array
     cen: wp.array
     cen0: wp.array
+    launches: tuple | None = None  # (the bake/row arrays they read, recorded wp.Launch commands)
 
 
 @dataclass
@@ -243,24 +270,40 @@ class FaceSystem:
             raise KDInputError(f"trajectory: has {n} vertices, the face model has {self.model.num_vertices}")
 
     def _step_chunk(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int) -> None:
+        """The step's two launches, recorded once per chunk and bake arrays; each step only sets the row offsets."""
+        key = (bake.xk, bake.vk, ch.rows)  # the arrays themselves (ids could be reused after a bake grows)
+        if ch.launches is None or any(a is not b for a, b in zip(ch.launches[0], key, strict=True)):
+            ch.launches = (key, self._record(ch, bake))
+        for cmd in ch.launches[1]:
+            cmd.set_param_by_name("off0", off0)
+            if cmd.kernel is track_step:
+                cmd.set_param_by_name("off1", off1)
+            cmd.launch()
+
+    def _record(self, ch: _Chunk, bake: TrajectoryBake) -> list:
         m = self.model
         b = ch.x.shape[0]
         d = self.device
+        cmds = []
         if m.alpha > 0 and m.clusters.num_clusters:
-            common = [ch.x, bake.xk, ch.rows, off0, self._offsets, self._members, self._mass]
+            common = [ch.x, bake.xk, ch.rows, 0, self._offsets, self._members, self._mass]
             if m.rotation == "svd3":
-                wp.launch(cluster_frames_svd, dim=(b, m.clusters.num_clusters), device=d,
-                          inputs=[*common, ROTATION_REGULARIZATION], outputs=[ch.rot, ch.cen, ch.cen0])
+                cmds.append(wp.launch(cluster_frames_svd, dim=(b, m.clusters.num_clusters), device=d,
+                                      inputs=[*common, ROTATION_REGULARIZATION], outputs=[ch.rot, ch.cen, ch.cen0],
+                                      record_cmd=True))
             else:
-                wp.launch(cluster_frames_iterative, dim=(b, m.clusters.num_clusters), device=d,
-                          inputs=[*common, m.rotation_iterations, ch.quat], outputs=[ch.rot, ch.cen, ch.cen0])
+                cmds.append(wp.launch(cluster_frames_iterative, dim=(b, m.clusters.num_clusters), device=d,
+                                      inputs=[*common, m.rotation_iterations, ch.quat],
+                                      outputs=[ch.rot, ch.cen, ch.cen0], record_cmd=True))
             voff = self._voff
         else:
             voff = self._voff_none
-        wp.launch(track_step, dim=(b, m.num_vertices), device=d,
-                  inputs=[bake.xk, bake.vk, ch.rows, off0, off1, voff, self._vcl, ch.rot, ch.cen, ch.cen0,
-                          self._kp, self._kd, float(m.alpha), float(bake.h), int(m.damping == "relative")],
-                  outputs=[ch.x, ch.v])
+        cmds.append(wp.launch(track_step, dim=(b, m.num_vertices), device=d,
+                              inputs=[bake.xk, bake.vk, ch.rows, 0, 0, voff, self._vcl, ch.rot, ch.cen, ch.cen0,
+                                      self._kp, self._kd, float(m.alpha), float(bake.h),
+                                      int(m.damping == "relative")],
+                              outputs=[ch.x, ch.v], record_cmd=True))
+        return cmds
 
     def _check(self, state: FaceState) -> None:
         """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["cluster_moments", "cluster_frames_svd", "cluster_frames_iterative", "track_step"]
+__all__ = ["cluster_moments", "polar_svd", "polar_iterative", "cluster_frames", "track_step"]
 
 
 @wp.func
@@ -54,63 +54,32 @@ def cluster_moments(
     return A, cp + o, cq + o0
 
 
-@wp.kernel
-def cluster_frames_svd(
-    x: wp.array2d(dtype=wp.vec3),
-    xk: wp.array2d(dtype=wp.vec3),
-    rows: wp.array(dtype=wp.int32),
-    off0: int,
-    offsets: wp.array(dtype=wp.int32),
-    members: wp.array(dtype=wp.int32),
-    mass: wp.array(dtype=float),
-    eta: float,
-    rot_out: wp.array2d(dtype=wp.mat33),
-    c_out: wp.array2d(dtype=wp.vec3),
-    c0_out: wp.array2d(dtype=wp.vec3),
-):
-    """Best-fit rotation of each cluster, R = U Vᵀ from svd3(A_pq) (Müller et al. 2005, eq. 8–9).
+@wp.func
+def polar_svd(A: wp.mat33, eta: float):
+    """Rotation R = U Vᵀ of A_pq from svd3 (Müller et al. 2005, eq. 8–9), in float64: svd3 works on AᵀA, which
+    squares the conditioning of thin clusters.
 
     Warp's svd3 returns proper rotations U, V and carries a reflection in the sign of σ₃; the determinant guard
     flips the last singular vector should R still reflect. Collinear clusters leave the rotation about their line
     undetermined: svd3 of A_pq + η·I picks the one closest to the kinematic frame (R = I when x = x_K), a bias of
     order η on a cluster's small rotation relative to its kinematic shape.
     """
-    b, c = wp.tid()
-    A, cx, c0 = cluster_moments(x, xk, b, rows[b] + off0, offsets[c], offsets[c + 1], members, mass)
-    # float64 svd3: it works on AᵀA, which squares the conditioning of thin clusters
     U, sigma, V = wp.svd3(wp.mat33d(A) + wp.float64(eta) * wp.identity(n=3, dtype=wp.float64))
     R = U * wp.transpose(V)
     if wp.determinant(R) < wp.float64(0.0):
         R = U * wp.diag(wp.vec3d(wp.float64(1.0), wp.float64(1.0), wp.float64(-1.0))) * wp.transpose(V)
-    rot_out[b, c] = wp.mat33(R)
-    c_out[b, c] = cx
-    c0_out[b, c] = c0
+    return wp.mat33(R)
 
 
-@wp.kernel
-def cluster_frames_iterative(
-    x: wp.array2d(dtype=wp.vec3),
-    xk: wp.array2d(dtype=wp.vec3),
-    rows: wp.array(dtype=wp.int32),
-    off0: int,
-    offsets: wp.array(dtype=wp.int32),
-    members: wp.array(dtype=wp.int32),
-    mass: wp.array(dtype=float),
-    iterations: int,
-    q: wp.array2d(dtype=wp.quat),
-    rot_out: wp.array2d(dtype=wp.mat33),
-    c_out: wp.array2d(dtype=wp.vec3),
-    c0_out: wp.array2d(dtype=wp.vec3),
-):
-    """Rotation of each cluster by Müller et al. 2016 ("A robust method to extract the rotational part of
-    deformations"): a few fixed-point iterations ω = Σ_k r_k × a_k / (|Σ_k r_k · a_k| + 1e-9), q ← exp(ω) q,
-    warm-started from the cluster's previous rotation ``q`` (identity at a window start, exact there since the
-    rest shape is the current kinematic shape). Converges to the polar rotation of A_pq, always proper
-    (no reflection case), and keeps the warm start in directions A_pq leaves undetermined.
+@wp.func
+def polar_iterative(A: wp.mat33, q0: wp.quat, iterations: int):
+    """Rotation of A_pq by Müller et al. 2016 ("A robust method to extract the rotational part of deformations"):
+    fixed-point iterations ω = Σ_k r_k × a_k / (|Σ_k r_k · a_k| + 1e-9), q ← exp(ω) q, from the warm start ``q0``
+    (the cluster's previous rotation; identity at a window start, exact there since the rest shape is the current
+    kinematic shape). Converges to the polar rotation of A_pq, always proper (no reflection case), and keeps the
+    warm start in directions A_pq leaves undetermined.
     """
-    b, c = wp.tid()
-    A, cx, c0 = cluster_moments(x, xk, b, rows[b] + off0, offsets[c], offsets[c + 1], members, mass)
-    qc = q[b, c]
+    qc = q0
     for _ in range(iterations):
         R = wp.quat_to_matrix(qc)
         num = wp.vec3(0.0)
@@ -124,8 +93,36 @@ def cluster_frames_iterative(
         w = wp.length(omega)
         if w > 1.0e-9:
             qc = wp.normalize(wp.quat_from_axis_angle(omega / w, w) * qc)
-    q[b, c] = qc
-    rot_out[b, c] = wp.quat_to_matrix(qc)
+    return qc
+
+
+@wp.kernel
+def cluster_frames(
+    x: wp.array2d(dtype=wp.vec3),
+    xk: wp.array2d(dtype=wp.vec3),
+    rows: wp.array(dtype=wp.int32),
+    off0: int,
+    offsets: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=float),
+    iterative: int,
+    eta: float,
+    iterations: int,
+    q: wp.array2d(dtype=wp.quat),
+    rot_out: wp.array2d(dtype=wp.mat33),
+    c_out: wp.array2d(dtype=wp.vec3),
+    c0_out: wp.array2d(dtype=wp.vec3),
+):
+    """Best-fit rotation and centroids of each cluster (Müller et al. 2005, §4.4), rest shape = the current
+    kinematic shape: :func:`polar_svd` (``iterative`` = 0) or :func:`polar_iterative` warm-started from ``q``."""
+    b, c = wp.tid()
+    A, cx, c0 = cluster_moments(x, xk, b, rows[b] + off0, offsets[c], offsets[c + 1], members, mass)
+    if iterative != 0:
+        qc = polar_iterative(A, q[b, c], iterations)
+        q[b, c] = qc
+        rot_out[b, c] = wp.quat_to_matrix(qc)
+    else:
+        rot_out[b, c] = polar_svd(A, eta)
     c_out[b, c] = cx
     c0_out[b, c] = c0
 
@@ -179,6 +176,6 @@ def track_step(
     num = vi + (h * kpi) * (xk[r1, i] - xi)
     if relative != 0:
         num = num + (h * kdi) * vk[r1, i]
-    vn = num / (1.0 + h * kdi + h * h * kpi)
+    vn = num * (1.0 / (1.0 + h * kdi + h * h * kpi))
     v[b, i] = vn
     x[b, i] = xi + h * vn

@@ -14,13 +14,13 @@ import numpy as np
 import warp as wp
 
 from ..errors import KDInputError, SimulationBlowUpError
-from .kernels import cluster_frames_iterative, cluster_frames_svd, track_step
+from .kernels import cluster_frames, track_step
 from .model import FaceModel
 
 __all__ = ["FaceSystem", "FaceState", "TrajectoryBake"]
 
 _GRID_TOL = 1e-9
-#: η added to the normalised A_pq before svd3 (see :func:`~kdfaces.dynamics.kernels.cluster_frames`).
+#: η added to the normalised A_pq before svd3 (see :func:`~kdfaces.dynamics.kernels.polar_svd`).
 ROTATION_REGULARIZATION = 1e-4
 
 
@@ -286,15 +286,11 @@ class FaceSystem:
         d = self.device
         cmds = []
         if m.alpha > 0 and m.clusters.num_clusters:
-            common = [ch.x, bake.xk, ch.rows, 0, self._offsets, self._members, self._mass]
-            if m.rotation == "svd3":
-                cmds.append(wp.launch(cluster_frames_svd, dim=(b, m.clusters.num_clusters), device=d,
-                                      inputs=[*common, ROTATION_REGULARIZATION], outputs=[ch.rot, ch.cen, ch.cen0],
-                                      record_cmd=True))
-            else:
-                cmds.append(wp.launch(cluster_frames_iterative, dim=(b, m.clusters.num_clusters), device=d,
-                                      inputs=[*common, m.rotation_iterations, ch.quat],
-                                      outputs=[ch.rot, ch.cen, ch.cen0], record_cmd=True))
+            cmds.append(wp.launch(cluster_frames, dim=(b, m.clusters.num_clusters), device=d,
+                                  inputs=[ch.x, bake.xk, ch.rows, 0, self._offsets, self._members, self._mass,
+                                          int(m.rotation == "iterative"), ROTATION_REGULARIZATION,
+                                          m.rotation_iterations, ch.quat],
+                                  outputs=[ch.rot, ch.cen, ch.cen0], record_cmd=True))
             voff = self._voff
         else:
             voff = self._voff_none

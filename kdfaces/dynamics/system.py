@@ -20,6 +20,7 @@ from .model import FaceModel
 __all__ = ["FaceSystem", "FaceState", "TrajectoryBake"]
 
 _GRID_TOL = 1e-9
+_OFF0, _OFF1 = object(), object()  # placeholders for the step's row offsets in launch specs
 #: η added to the normalised A_pq before svd3 (see :func:`~kdfaces.dynamics.kernels.polar_svd`).
 ROTATION_REGULARIZATION = 1e-4
 
@@ -251,9 +252,9 @@ class FaceSystem:
         off0, off1 = state.steps * bake.stride, (state.steps + 1) * bake.stride
         if self._pool is None or len(state.chunks) == 1:
             for ch in state.chunks:
-                self._step_chunk(ch, bake, off0, off1)
+                self._step_chunk(ch, bake, off0, off1, threaded=False)
         else:
-            list(self._pool.map(lambda ch: self._step_chunk(ch, bake, off0, off1), state.chunks))
+            list(self._pool.map(lambda ch: self._step_chunk(ch, bake, off0, off1, threaded=True), state.chunks))
         state.steps += 1
         if state.steps % self.check_every == 0:
             self._check(state)
@@ -269,37 +270,48 @@ class FaceSystem:
         if n != self.model.num_vertices:
             raise KDInputError(f"trajectory: has {n} vertices, the face model has {self.model.num_vertices}")
 
-    def _step_chunk(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int) -> None:
-        """The step's two launches, recorded once per chunk and bake arrays; each step only sets the row offsets."""
+    def _step_chunk(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int, *, threaded: bool) -> None:
+        """The step's two launches. Alone, they are recorded once per chunk and bake arrays and each step only sets
+        the row offsets (less Python per step); threaded, they go through ``wp.launch``, which releases the GIL
+        (a recorded CPU launch does not, so threads would run one at a time)."""
+        specs = self._launch_specs(ch, bake)
+        if threaded:
+            for kernel, dim, inputs, outputs in specs:
+                inputs = [off0 if a is _OFF0 else off1 if a is _OFF1 else a for a in inputs]
+                wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            return
         key = (bake.xk, bake.vk, ch.rows)  # the arrays themselves (ids could be reused after a bake grows)
         if ch.launches is None or any(a is not b for a, b in zip(ch.launches[0], key, strict=True)):
-            ch.launches = (key, self._record(ch, bake))
+            cmds = []
+            for kernel, dim, inputs, outputs in specs:
+                inputs = [0 if a is _OFF0 or a is _OFF1 else a for a in inputs]
+                cmds.append(wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device,
+                                      record_cmd=True))
+            ch.launches = (key, cmds)
         for cmd in ch.launches[1]:
             cmd.set_param_by_name("off0", off0)
             if cmd.kernel is track_step:
                 cmd.set_param_by_name("off1", off1)
             cmd.launch()
 
-    def _record(self, ch: _Chunk, bake: TrajectoryBake) -> list:
+    def _launch_specs(self, ch: _Chunk, bake: TrajectoryBake) -> list:
+        """(kernel, dim, inputs, outputs) of one step; the row offsets are the placeholders _OFF0 and _OFF1."""
         m = self.model
         b = ch.x.shape[0]
-        d = self.device
-        cmds = []
+        specs = []
         if m.alpha > 0 and m.clusters.num_clusters:
-            cmds.append(wp.launch(cluster_frames, dim=(b, m.clusters.num_clusters), device=d,
-                                  inputs=[ch.x, bake.xk, ch.rows, 0, self._offsets, self._members, self._mass,
-                                          int(m.rotation == "iterative"), ROTATION_REGULARIZATION,
-                                          m.rotation_iterations, ch.quat],
-                                  outputs=[ch.rot, ch.cen, ch.cen0], record_cmd=True))
+            specs.append((cluster_frames, (b, m.clusters.num_clusters),
+                          [ch.x, bake.xk, ch.rows, _OFF0, self._offsets, self._members, self._mass,
+                           int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations, ch.quat],
+                          [ch.rot, ch.cen, ch.cen0]))
             voff = self._voff
         else:
             voff = self._voff_none
-        cmds.append(wp.launch(track_step, dim=(b, m.num_vertices), device=d,
-                              inputs=[bake.xk, bake.vk, ch.rows, 0, 0, voff, self._vcl, ch.rot, ch.cen, ch.cen0,
-                                      self._kp, self._kd, float(m.alpha), float(bake.h),
-                                      int(m.damping == "relative")],
-                              outputs=[ch.x, ch.v], record_cmd=True))
-        return cmds
+        specs.append((track_step, (b, m.num_vertices),
+                      [bake.xk, bake.vk, ch.rows, _OFF0, _OFF1, voff, self._vcl, ch.rot, ch.cen, ch.cen0, self._kp,
+                       self._kd, float(m.alpha), float(bake.h), int(m.damping == "relative")],
+                      [ch.x, ch.v]))
+        return specs
 
     def _check(self, state: FaceState) -> None:
         """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""

@@ -2,7 +2,8 @@
 
 The kinematic trajectory is baked once per simulate call on the step grid (``prepare``), into Warp arrays of
 x_K, ẋ_K; each step then costs two kernel launches for the whole batch (cluster rotations, then goals + implicit
-PD). A batch may be split into chunks advanced by parallel threads (Warp CPU launches release the GIL).
+PD). A batch may be split into chunks advanced by parallel threads: ``wp.launch`` on the CPU releases the GIL, a
+recorded launch (``record_cmd=True``, less Python per step) does not, so recorded launches serve unthreaded steps.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """Warp kernels of one face dynamics step, launched over (batch member, cluster) and (batch member, vertex).
 
 The kinematic trajectory is baked on the step grid: ``xk[r, i]``, ``vk[r, i]`` are x_K and ẋ_K of vertex i at grid
-row r; batch member b at step k reads row ``rows[b] + k`` (start of the step) and ``rows[b] + k + 1`` (end).
+row r; batch member b at step k reads rows ``rows[b] + off0`` (start of the step, t) and ``rows[b] + off1``
+(end of the step, t + h), with off0 = k·stride and off1 = (k + 1)·stride set by the bake layout.
 """
 
 from __future__ import annotations

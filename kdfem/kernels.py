@@ -164,7 +164,7 @@ def project_psd(A: mat99):
     V = mat99()
     for i in range(9):
         V[i, i] = _1
-    for sweep in range(10):
+    for _sweep in range(10):
         for p in range(8):
             for q in range(p + 1, 9):
                 apq = A[p, q]

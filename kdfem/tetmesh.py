@@ -1,8 +1,8 @@
 """Tetrahedral meshes from closed surfaces (pytetwild), quality checks and barycentric surface embedding.
 
 A :class:`TetMesh` holds rest node positions (N, 3) [m] float64 and tets (T, 4) int64, every tet positively
-oriented (det[x1−x0, x2−x0, x3−x0] > 0); flat slivers
-(|V| ≤ 1e-6 × median) are dropped (an error if more than 5 % are). The smooth render surface is carried by the FEM through an
+oriented (det[x1−x0, x2−x0, x3−x0] > 0); flat slivers (|V| ≤ 1e-6 × median) are dropped (an error if more
+than 5 % are). The smooth render surface is carried by the FEM through an
 :class:`Embedding`: each surface vertex stores its containing (or nearest) tet and barycentric weights.
 """
 

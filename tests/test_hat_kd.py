@@ -1,0 +1,70 @@
+"""The hat as a KD system on the default head: exactness, error vs window, detection of bad states."""
+
+import numpy as np
+import pytest
+
+from kdfaces.demo import demo_animation
+from kdfaces.errors import KDInputError, SimulationBlowUpError
+from kdfaces.io.rigfiles import load_default_rig
+from kdfaces.kd import simulate_full, simulate_kd
+from kdfaces.trajectory import KinematicTrajectory
+from kdfem.attachment import attached_nodes
+from kdfem.hat import HatParams, christmas_hat
+from kdfem.materials import Material
+from kdfem.model import FEMModel
+from kdfem.system import HatSystem
+from kdfem.tetmesh import embed_surface, tet_quality, tetrahedralize
+
+H = 0.02
+
+
+@pytest.fixture(scope="module")
+def setup():
+    rig = load_default_rig()
+    surf = christmas_hat(HatParams(segments=16, rings=8, thickness=0.015))
+    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=0.12)
+    q = tet_quality(mesh)
+    assert q["min_tet_volume_m3"] > 0 and q["min_dihedral_deg"] > 1.0
+    model = FEMModel(mesh, Material(youngs=3e4), attached_nodes(mesh.nodes, rig.neutral, distance=0.02),
+                     alpha=1.0, beta=0.01)
+    system = HatSystem(model, embedding=embed_surface(mesh, surf.vertices), tol=1e-9)
+    return rig, KinematicTrajectory(rig, demo_animation()), system, surf
+
+
+def test_embedding_reproduces_the_render_surface(setup):
+    _, _, system, surf = setup
+    np.testing.assert_allclose(system.surface(system.model.mesh.nodes), surf.vertices, atol=1e-12)
+
+
+def test_window_to_shot_start_equals_full_and_error_shrinks_with_window(setup):
+    _, traj, system, _ = setup
+    times = np.array([0.5, 0.6, 0.7])
+    full = simulate_full(system, traj, times, h=H)
+    assert np.isfinite(full).all()
+    rigid = system.rigid(traj, times)
+    assert np.linalg.norm(full - rigid, axis=2).max() > 1e-4  # the head motion really deforms the hat
+    # a window reaching back to the shot start (t = 0) is the full simulation: same initial state, same steps;
+    # equal up to the Newton tolerance (1e-9 m per update, members of a batch may take extra iterations)
+    kd_all = simulate_kd(system, traj, times, times.max(), h=H)
+    np.testing.assert_allclose(kd_all[-1], full[-1], atol=1e-7)
+    errs = [np.linalg.norm(simulate_kd(system, traj, times, w, h=H) - full, axis=2).max() for w in (0.1, 0.3, 0.5)]
+    assert all(np.isfinite(errs))
+    assert errs[0] >= errs[1] >= errs[2]
+
+
+def test_inverted_state_raises(setup):
+    _, traj, system, _ = setup
+    state = system.initial_state(traj, np.array([0.0]))
+    free = system.model.free
+    state.x[0, free] = state.x[0, free[::-1]]  # scramble the free nodes: elements invert
+    with pytest.raises(SimulationBlowUpError):
+        for k in range(3):
+            system.step(state, traj, np.array([k * H]), H)
+
+
+def test_bad_input_gives_clear_errors(setup):
+    rig, _, _, surf = setup
+    with pytest.raises(KDInputError, match="not closed"):
+        tetrahedralize(surf.vertices, surf.faces[:-3])
+    with pytest.raises(KDInputError, match="no hat node"):
+        attached_nodes(surf.vertices + np.array([0.0, 5.0, 0.0]), rig.neutral)

@@ -18,7 +18,7 @@ from .tetmesh import TetMesh, embed_surface, tetrahedralize
 
 __all__ = ["DEFAULT_MATERIAL", "hat_tetmesh", "default_hat_system"]
 
-#: A soft felt-like hat: E = 8 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
+#: A soft felt-like hat: E = 30 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
 DEFAULT_MATERIAL = Material()
 
 

@@ -33,7 +33,7 @@ class Material:
         model: ``"corotated"`` or ``"neohookean"``.
     """
 
-    youngs: float = 8.0e3
+    youngs: float = 3.0e4
     poisson: float = 0.3
     density: float = 150.0
     model: str = "neohookean"

@@ -7,46 +7,23 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from .errors import KDInputError, SimulationBlowUpError
 
 __all__ = ["main"]
 
 
 def _demo(args) -> dict:
-    from .demo import demo_animation, demo_kd
-    from .io.rigfiles import load_rig
-    from .kd_report import write_kd_report
-    from .render import filmstrip
-    from .summary import write_summary
-    from .trajectory import KinematicTrajectory
+    from .demo import run_demo
 
-    out = Path(args.out)
-    rig = load_rig(args.rig)
-    anim = demo_animation()
-    traj = KinematicTrajectory(rig, anim)
-    times = anim.frame_times
-    kd, report, kd_summary = demo_kd(rig, traj, threads=args.threads)
-    strip = np.array([0, 20, 28, 65, 103, 125])  # frames: rest, after the head turn, blink, smile, brow, nod
-    strip_times = times[strip]
-    rows = {"kinematic": traj.positions(strip_times), f"KD (δ = {kd_summary['window_s']:.2f} s)": kd[strip]}
-    outputs = [filmstrip(out / "filmstrip_kinematic_kd.png", rig.faces, rows, strip_times,
-                         title=f"{rig.name}: kinematic | KD demo"),
-               *write_kd_report(out, report)]
-    summary = {
-        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes},
-        "fps": anim.fps,
-        "frames": len(times),
-        "duration_s": anim.duration,
-        "outputs": [str(p.relative_to(out)) for p in outputs],
-        "kd": kd_summary,
-    }
-    write_summary(out, summary)
-    return summary
+    return run_demo(args.out, rig=args.rig, threads=args.threads, exports=args.export)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .io.export import add_export_option, add_export_rig_parser
+    from .renders import add_render_parser
+    from .run import add_run_parser
+    from .viewer import add_view_parser
+
     ap = argparse.ArgumentParser(prog="kdfaces", description="Kinodynamics for blend-shape face rigs.")
     sub = ap.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run the built-in demo shot on the default rig")
@@ -54,7 +31,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--rig", default="default", help="rig: 'default', an .npz, or an OBJ folder")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
+    add_export_option(demo)
     demo.set_defaults(func=_demo)
+    add_run_parser(sub)
+    add_render_parser(sub)
+    add_view_parser(sub)
+    add_export_rig_parser(sub)
     return ap
 
 
@@ -67,8 +49,10 @@ def main(argv=None) -> int:
         return 2
     if getattr(args, "json", False):
         print(json.dumps(summary, indent=2))
-    else:
+    elif getattr(args, "out", None):
         print(f"kdfaces {args.command}: wrote {Path(args.out) / 'summary.json'}")
+    elif isinstance(summary, dict) and summary.get("screenshot"):
+        print(f"kdfaces {args.command}: wrote {summary['screenshot']}")
     return 0
 
 

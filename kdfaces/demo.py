@@ -1,10 +1,14 @@
-"""The built-in demo shot: ~6 s at 25 fps of expressions and a head turn/nod with sharp stops, and its dynamics.
+"""The built-in demo: ~6 s at 25 fps of expressions and a head turn/nod with sharp stops, and its shot.
 
-The demo's face is underdamped (ζ = 0.3) with a soft-tissue settle-time map: 0.25 s over bone (forehead, nose
-bridge, skull), up to 0.6 s in the cheeks and lips, so overshoot and follow-through show after each sharp stop.
+The demo's dynamics and constraints live in ``kdfaces/shots/demo.toml`` (the one place to tune them): an
+underdamped face (ζ = 0.3) with a soft-tissue settle-time map, 0.25 s over bone (forehead, nose bridge, skull) up
+to 0.6 s in the cheeks and lips, so overshoot and follow-through show after each sharp stop; and four IKD
+constraints (an end effector, a tilted-head smile pose, a lip subset 0.9 s later, a brow velocity).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -12,15 +16,17 @@ from .curves import KeyframeCurve
 from .skeleton import JointDrive, SkeletonAnimation
 from .trajectory import FaceAnimation, ShapeTrack
 
-__all__ = ["demo_animation", "demo_face_model", "demo_kd", "DEMO_FPS", "DEMO_DURATION_S", "DEMO_DYNAMICS",
-           "DEMO_SWEEP_S"]
+__all__ = ["demo_animation", "demo_face_model", "run_demo", "DEMO_FPS", "DEMO_DURATION_S", "DEMO_SWEEP_S",
+           "DEMO_SHOT"]
 
 DEMO_FPS = 25.0
 DEMO_DURATION_S = 6.0
-#: Face dynamics of the demo: settle times [s] over bone and in soft tissue, damping ratio, shape matching α.
-DEMO_DYNAMICS = {"stiff_s": 0.25, "loose_s": 0.6, "damping_ratio": 0.3, "alpha": 0.2}
+#: The demo shot file.
+DEMO_SHOT = Path(__file__).resolve().parent / "shots" / "demo.toml"
 #: Windows [s] of the KD-vs-full sweep (the automatic window is added).
 DEMO_SWEEP_S = (0.08, 0.2, 0.4, 1.2)
+#: Target offsets [m] of the error-after-6-iterations map (Fig. 9 analog), along x and y.
+DEMO_OFFSETS_M = np.linspace(-0.05, 0.05, 5)
 
 
 def _ease(times, values):
@@ -52,52 +58,74 @@ def demo_animation() -> FaceAnimation:
 
 
 def demo_face_model(rig, **overrides):
-    """The demo's :class:`~kdfaces.dynamics.FaceModel` on ``rig`` (keyword ``overrides`` for ``FaceModel.create``)."""
-    from .dynamics import FaceModel, soft_tissue_settle_map
+    """The demo's :class:`~kdfaces.dynamics.FaceModel` on ``rig``, from the demo shot's ``[dynamics]``."""
+    from .shot import dynamics_model, read_shot_table
 
-    d = DEMO_DYNAMICS
-    kwargs = dict(settle_time=soft_tissue_settle_map(rig, stiff_s=d["stiff_s"], loose_s=d["loose_s"]),
-                  damping_ratio=d["damping_ratio"], alpha=d["alpha"])
-    kwargs.update(overrides)
-    return FaceModel.from_rig(rig, **kwargs)
+    return dynamics_model(read_shot_table(DEMO_SHOT).get("dynamics", {}), rig, **overrides)
 
 
-def demo_kd(rig, trajectory, *, threads: int = 2, h: float | None = None, device="cpu"):
-    """KD of every frame at the automatic window, the full simulation and the KD-vs-full sweep.
+def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: bool = True) -> dict:
+    """Run the demo shot and write everything a person looks at; returns summary.json's content.
 
-    Returns ``(kd, report, summary)``: KD states (F, N, 3) [m], a :class:`~kdfaces.kd_report.KDErrorReport` and the
-    ``"kd"`` block of summary.json.
+    KD of every frame at the automatic window, the full simulation and the KD-vs-full sweep (Fig. 10 analog), the
+    IKD solve with the paper's update, its "scaled" variant and the secant update (Fig. 8 analog), the error after
+    6 iterations over a grid of target offsets of the first constraint (Fig. 9 analog), filmstrips.
     """
-    import time
+    from .ikd import solve_ikd
+    from .ikd_report import offset_grid as grid_errors
+    from .ikd_report import offset_grid_plot
+    from .kd import simulate_full
+    from .kd_report import kd_error_report, write_kd_report
+    from .run import ikd_summary, run_shot, write_run_outputs
+    from .shot import load_shot
+    from .summary import write_summary
 
-    from .dynamics import FaceSystem
-    from .kd import simulate_full, simulate_kd
-    from .kd_report import kd_error_report
-    from .window import automatic_window
-
-    h = 1.0 / trajectory.fps if h is None else h
-    model = demo_face_model(rig)
-    system = FaceSystem(model, threads=threads, device=device)
-    est = automatic_window(model, trajectory, h=h)
-    window = max(est.window_s, h)
-    times = trajectory.frame_times
-    full = simulate_full(system, trajectory, times, h=h)
-    t0 = time.perf_counter()
-    kd = simulate_kd(system, trajectory, times, window, h=h)
-    ms_per_state = 1e3 * (time.perf_counter() - t0) / len(times)
-    windows = sorted({*DEMO_SWEEP_S, window})
-    report = kd_error_report(system, trajectory, windows, h=h, times=times, full=full, epsilon=est.epsilon_m,
-                             window_auto=window)
-    auto_row = windows.index(window)
+    out = Path(out)
+    shot = load_shot(DEMO_SHOT, rig=rig)
+    run = run_shot(shot, threads=threads)
+    traj, system, h = shot.trajectory, run.system, run.h
+    full = simulate_full(system, traj, run.times, h=h)
+    windows = sorted({*DEMO_SWEEP_S, run.window_s})
+    report = kd_error_report(system, traj, windows, h=h, times=run.times, full=full, epsilon=run.epsilon_m,
+                             window_auto=run.window_s)
+    constraints = run.ikd_result.constraints
+    sv = shot.solver
+    variants = {"paper": ("paper", 1.0), "scaled (s = 0.8)": ("paper", 0.8)}
+    runs = {label: solve_ikd(system, traj, constraints, window=run.window_s, h=h, update=u, damping=s,
+                             tolerance_m=sv["tolerance_m"], tolerance_mps=sv["tolerance_mps"],
+                             max_iterations=int(sv["max_iterations"]))
+            for label, (u, s) in variants.items()}
+    runs[f"{run.ikd_result.update} (ours)"] = run.ikd_result
+    paths = write_run_outputs(run, out, exports=exports, convergence_runs=runs)
+    paths += list(write_kd_report(out, report))
+    if offset_grid:
+        c = constraints[0]
+        errs, _ = grid_errors(system, traj, c, DEMO_OFFSETS_M, window=run.window_s, h=h, iterations=6,
+                              update="paper")
+        paths.append(offset_grid_plot(out / "ikd_offset_grid.png", DEMO_OFFSETS_M, errs,
+                                      title=f"{c.label}: error after 6 paper iterations"))
+    auto_row = windows.index(run.window_s)
     summary = {
-        "window_s": window,
-        "window_auto_s": est.window_s,
-        "epsilon_m": est.epsilon_m,
-        "settle_time_s": float(model.settle_time.max()),
-        "ms_per_state": ms_per_state,
-        "max_deviation_from_kinematic_m": float(np.linalg.norm(kd - trajectory.positions(times), axis=2).max()),
-        "sweep": [{"window_s": float(w), "max_error_vs_full_m": float(e.max())}
-                  for w, e in zip(report.windows, report.errors, strict=True)],
-        "max_error_vs_full_at_auto_m": float(report.errors[auto_row].max()),
+        "rig": {"name": shot.rig.name, "vertices": shot.rig.num_vertices, "shapes": shot.rig.num_shapes},
+        "fps": shot.animation.fps,
+        "frames": len(run.times),
+        "duration_s": shot.animation.duration,
+        "outputs": [str(Path(p).relative_to(out)) for p in paths],
+        "kd": {
+            "window_s": run.window_s,
+            "window_auto_s": run.window_auto_s,
+            "epsilon_m": run.epsilon_m,
+            "settle_time_s": float(system.model.settle_time.max()),
+            "ms_per_state": run.ms_per_state,
+            "max_deviation_from_kinematic_m": float(np.linalg.norm(run.kd - run.kinematic, axis=-1).max()),
+            "sweep": [{"window_s": float(w), "max_error_vs_full_m": float(e.max())}
+                      for w, e in zip(report.windows, report.errors, strict=True)],
+            "max_error_vs_full_at_auto_m": float(report.errors[auto_row].max()),
+        },
+        "ikd": ikd_summary(run),
     }
-    return kd, report, summary
+    summary["ikd"]["comparison"] = [
+        {"update": label, "converged": bool(r.converged), "iterations": int(r.iterations),
+         "wall_s": float(r.wall_s), "kd_states_simulated": int(r.kd_states)} for label, r in runs.items()]
+    write_summary(out, summary)
+    return summary

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .demo import DEMO_SHOT
 from .errors import KDInputError
 from .ikd.solver import IKDResult, independent_check, solve_ikd
 from .kd import simulate_kd
@@ -19,7 +20,6 @@ from .shot import Shot, load_shot
 __all__ = ["ShotRun", "run_shot", "DEMO_SHOT", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
            "add_run_parser"]
 
-DEMO_SHOT = Path(__file__).resolve().parent / "shots" / "demo.toml"
 
 
 @dataclass
@@ -170,6 +170,8 @@ def _run_command(args) -> dict:
     from .summary import write_summary
 
     run = run_shot(args.shot, window=args.window)
+    if args.out is None:
+        args.out = str(Path("kd-out") / Path(args.shot).stem)
     out = Path(args.out)
     paths = write_run_outputs(run, out, exports=args.export)
     summary = run_summary(run, out, paths)
@@ -210,4 +212,4 @@ def add_run_parser(subparsers) -> None:
     p.add_argument("--window", type=float, default=None, help="KD window [s] (overrides the shot's)")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_export_option(p)
-    p.set_defaults(func=_run_command, out_default=lambda a: f"kd-out/{Path(a.shot).stem}")
+    p.set_defaults(func=_run_command)

@@ -66,7 +66,8 @@ from .poses import kinematic_pose
 from .skeleton import JointDrive, SkeletonAnimation
 from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
 
-__all__ = ["Shot", "load_shot", "parse_shot", "DYNAMICS_DEFAULTS", "SOLVER_DEFAULTS"]
+__all__ = ["Shot", "load_shot", "parse_shot", "read_shot_table", "dynamics_model", "settle_time", "DYNAMICS_DEFAULTS",
+           "SOLVER_DEFAULTS"]
 
 DYNAMICS_DEFAULTS = {"settle_time_s": 0.25, "damping_ratio": 0.3, "shape_matching_alpha": 0.2,
                      "damping": "relative", "window_s": "auto", "step_s": 0.04, "areal_density_kg_m2": 10.0}
@@ -119,23 +120,11 @@ class Shot:
 
     def settle_time(self):
         """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section."""
-        st = self.dynamics["settle_time_s"]
-        if isinstance(st, dict):
-            from .dynamics.gains import soft_tissue_settle_map
-
-            return soft_tissue_settle_map(self.rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"])
-        return float(st)
+        return settle_time(self.dynamics, self.rig)
 
     def model(self, **overrides):
         """The face dynamics model of the shot's ``[dynamics]`` (keyword overrides for FaceModel.create)."""
-        from .dynamics import FaceModel
-
-        d = self.dynamics
-        kwargs = dict(settle_time=self.settle_time(), damping_ratio=float(d["damping_ratio"]),
-                      alpha=float(d["shape_matching_alpha"]), damping=d["damping"],
-                      areal_density=float(d["areal_density_kg_m2"]))
-        kwargs.update(overrides)
-        return FaceModel.from_rig(self.rig, **kwargs)
+        return dynamics_model(self.dynamics, self.rig, **overrides)
 
     def constraints(self, trajectory=None) -> list[Constraint]:
         """The shot's constraints, targets resolved against ``trajectory`` (default the kinematic trajectory)."""
@@ -197,6 +186,28 @@ class Shot:
         raise KDInputError(f"{where}.kind: {kind!r} unknown; expected pose, subset, velocity or end_effector")
 
 
+def settle_time(dynamics: dict, rig):
+    """The settle time of a ``[dynamics]`` table: seconds, or the per-vertex (N,) soft-tissue map on ``rig``."""
+    st = dynamics["settle_time_s"]
+    if isinstance(st, dict):
+        from .dynamics.gains import soft_tissue_settle_map
+
+        return soft_tissue_settle_map(rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"])
+    return float(st)
+
+
+def dynamics_model(dynamics: dict, rig, **overrides):
+    """A :class:`~kdfaces.dynamics.FaceModel` on ``rig`` from a ``[dynamics]`` table (defaults filled in)."""
+    from .dynamics import FaceModel
+
+    d = {**DYNAMICS_DEFAULTS, **dynamics}
+    kwargs = dict(settle_time=settle_time(d, rig), damping_ratio=float(d["damping_ratio"]),
+                  alpha=float(d["shape_matching_alpha"]), damping=d["damping"],
+                  areal_density=float(d["areal_density_kg_m2"]))
+    kwargs.update(overrides)
+    return FaceModel.from_rig(rig, **kwargs)
+
+
 def _animation(table: dict, base: Path, where: str, rig) -> FaceAnimation:
     from .demo import demo_animation
     from .io.livelinkface import livelinkface_animation
@@ -245,8 +256,11 @@ def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
     return KeyframeCurve.create(times, v, interpolation=interpolation, where=where)
 
 
-def parse_shot(data: dict, path: Path) -> Shot:
-    """A :class:`Shot` from parsed TOML ``data``; ``path`` names the file in errors and anchors relative paths."""
+def parse_shot(data: dict, path: Path, *, rig=None) -> Shot:
+    """A :class:`Shot` from parsed TOML ``data``; ``path`` names the file in errors and anchors relative paths.
+
+    ``rig`` (a path or "default") replaces the file's ``[rig] source``.
+    """
     from .io.rigfiles import load_rig
 
     path = Path(path)
@@ -254,8 +268,8 @@ def parse_shot(data: dict, path: Path) -> Shot:
     _keys(data, {"name", "rig", "animation", "dynamics", "constraints", "solver"}, where)
     rig_table = data.get("rig", {})
     _keys(rig_table, {"source"}, f"{where}: rig")
-    src = rig_table.get("source", "default")
-    rig = load_rig(src if src == "default" else path.parent / src)
+    src = rig_table.get("source", "default") if rig is None else str(rig)
+    rig = load_rig(src if src == "default" or rig is not None else path.parent / src)
     anim = _animation(data.get("animation", {}), path.parent, f"{where}: animation", rig)
     dyn = dict(DYNAMICS_DEFAULTS)
     _keys(data.get("dynamics", {}), set(DYNAMICS_DEFAULTS), f"{where}: dynamics")
@@ -286,13 +300,17 @@ def parse_shot(data: dict, path: Path) -> Shot:
     return shot
 
 
-def load_shot(path) -> Shot:
-    """Read and validate a TOML shot file."""
+def read_shot_table(path) -> dict:
+    """The parsed TOML of a shot file (one clear error when missing or malformed)."""
     p = Path(path)
     if not p.exists():
         raise KDInputError(f"{p}: file not found")
     try:
-        data = tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as e:
         raise KDInputError(f"{p}: not valid TOML ({e})") from None
-    return parse_shot(data, p)
+
+
+def load_shot(path, *, rig=None) -> Shot:
+    """Read and validate a TOML shot file (``rig`` replaces its ``[rig] source``)."""
+    return parse_shot(read_shot_table(path), Path(path), rig=rig)

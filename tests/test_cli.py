@@ -21,6 +21,25 @@ def test_demo_summary(demo_run):
     assert s["outputs"] and all((out / p).exists() for p in s["outputs"])
 
 
+def test_demo_kd_and_ikd_summary(demo_run):
+    _, s = demo_run
+    kd = s["kd"]
+    assert set(kd) >= {"window_s", "window_auto_s", "epsilon_m", "settle_time_s", "ms_per_state",
+                       "max_deviation_from_kinematic_m", "sweep", "max_error_vs_full_at_auto_m"}
+    assert kd["max_deviation_from_kinematic_m"] >= 2e-3  # visible secondary motion on the ≈0.3 m head
+    assert kd["max_error_vs_full_at_auto_m"] <= kd["epsilon_m"]
+    errs = [row["max_error_vs_full_m"] for row in sorted(kd["sweep"], key=lambda r: r["window_s"])]
+    assert all(b <= a for a, b in zip(errs, errs[1:]))  # KD → full as δ grows
+    ikd = s["ikd"]
+    assert ikd["converged"] and ikd["iterations"] <= 10
+    kinds = {c["kind"] for c in ikd["constraints"]}
+    assert kinds == {"pose", "subset", "velocity", "end_effector"}
+    for c in ikd["constraints"]:
+        assert c["error_after_m"] <= (1e-3 if c["kind"] == "velocity" else 1e-5)
+    assert ikd["independent_check_max_error_m"] == max(c["error_after_m"] for c in ikd["constraints"])
+    assert {"ikd_convergence.png", "ikd_offset_grid.png", "kd_error.png"} <= set(s["outputs"])
+
+
 def test_demo_filmstrip_shows_a_face(demo_run):
     import matplotlib.image as mpimg
 

@@ -209,7 +209,7 @@ class ShotViewer:
         self.ikd_stale = False
         r = self.ikd
         self.ikd_message = (f"IKD: {r.reason}, {r.iterations} sweeps, {r.wall_s:.2f} s, "
-                            f"max error {1e3 * r.errors_after.max():.3f} mm")
+                            f"{_error_text(r)}")
         self.mode = "ikd"
         self.update()
         return r
@@ -399,3 +399,13 @@ def add_view_parser(subparsers) -> None:
     ap.add_argument("--height", type=int, default=720, help="window height [px]")
     ap.add_argument("--json", action="store_true", help="print the summary to stdout")
     ap.set_defaults(func=_view_command)
+
+
+def _error_text(result) -> str:
+    """Largest remaining error per unit: positions in mm, velocities in mm/s (never mixed)."""
+    parts = []
+    for unit, scale, label in (("m", 1e3, "mm"), ("m/s", 1e3, "mm/s")):
+        errs = [e for c, e in zip(result.constraints, result.errors_after) if c.unit == unit]
+        if errs:
+            parts.append(f"max error {scale * max(errs):.4f} {label}")
+    return ", ".join(parts)

@@ -4,26 +4,22 @@ Units are SI throughout: metres, seconds, kilograms. Arrays of vertex positions 
 """
 
 from .curves import KeyframeCurve
+from .dynamics import FaceModel, FaceSystem, soft_tissue_settle_map
 from .errors import KDInputError, SimulationBlowUpError
 from .io.livelinkface import livelinkface_animation, read_livelinkface
 from .io.rigfiles import load_default_rig, load_rig, save_npz, save_obj_folder
+from .kd import simulate_full, simulate_kd
+from .kd_report import kd_error_report, write_kd_report
 from .rig import BlendshapeRig, Skeleton
 from .skeleton import JointDrive, SkeletonAnimation
 from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .window import automatic_window, window_1d
 
 __all__ = [
     "KeyframeCurve", "KDInputError", "SimulationBlowUpError", "livelinkface_animation", "read_livelinkface",
     "load_default_rig", "load_rig", "save_npz", "save_obj_folder", "BlendshapeRig", "Skeleton", "JointDrive",
     "SkeletonAnimation", "FaceAnimation", "KinematicTrajectory", "ShapeTrack",
-]
-
-# face kinodynamics (§3, §4.5, §5.2)
-from .dynamics import FaceModel, FaceSystem, soft_tissue_settle_map  # noqa: E402
-from .kd import simulate_full, simulate_kd  # noqa: E402
-from .kd_report import kd_error_report, write_kd_report  # noqa: E402
-from .window import automatic_window, window_1d  # noqa: E402
-
-__all__ += [
+    # face kinodynamics (§3, §4.5, §5.2)
     "FaceModel", "FaceSystem", "soft_tissue_settle_map", "simulate_full", "simulate_kd", "kd_error_report",
     "write_kd_report", "automatic_window", "window_1d",
 ]

@@ -1,28 +1,31 @@
-"""Implicit Euler with Newton iterations for an attached FEM model, batched over many states.
+"""Implicit Euler for an attached FEM model as energy minimisation, batched over many states.
 
-Backward Euler (velocity form): with x⁺ = x + h v⁺ on the free nodes and the attached nodes set to the bone's
-rigid motion at t + h,
+Backward Euler (velocity form) with x⁺ = x + h v⁺ on the free nodes and the attached nodes set to the bone's
+rigid motion at t + h is the minimiser of the incremental potential (Martin et al. 2011; Gast et al. 2015)
 
-    r(v⁺) = M(v⁺ − v) − h [f_el(x⁺) − βK_corot(x⁺) v⁺ − αM(v⁺ − w(x⁺)) + M g] = 0,
+    E(v) = ½(v − v_n)ᵀM(v − v_n) + Ψ(x_n + h v) + h·½vᵀβK_R v + h·½α‖v − w(x_n + h v)‖²_M − h vᵀM g,
 
-where w is the bone's rigid velocity field (so α damps motion *relative* to the head; a hat carried at constant
-head speed is not dragged), and βK_corot is the corotated linear stiffness applied to the velocity (zero for rigid
-motion; equal to βK at rest, so C = αM + βK there, as the modal analysis assumes).
+whose gradient is the backward-Euler residual
+r = M(v − v_n) − h[f_el(x⁺) − βK_R v − α(I − hA)ᵀM(v − w) + M g]. Here w(x) = A x + c is the bone's rigid
+velocity field (α damps motion *relative* to the head; a hat carried at constant head speed is not dragged) and
+K_R the linear stiffness corotated per tet by the rotations of x_n (lagged one step, so the damping is a
+quadratic dissipation potential; zero for rigid motion, βK at rest, so C = αM + βK there as the modal analysis
+assumes).
 
-Newton matrix: A = (1 + hα) M + (h² + hβ) K_rest, factored **once** (scipy ``splu``) and shared by every batch
-member and step. The bone's rotation R(t + h) is handled by corotation of the whole system — the update is
-Δv = −R A⁻¹ Rᵀ r (M is lumped and isotropic, so R A Rᵀ is the rest matrix seen in the moving frame) — and all
-members are solved as one multi-right-hand-side ``splu.solve``. This is a quasi-Newton (chord) iteration: it
-converges linearly, at a rate set by how far the local element rotations and the material non-linearity are from
-the rest frame. When it has not converged after ``chord_iter`` (12) iterations (large local rotations of a very
-soft object), the step continues with true Newton iterations (PSD-projected tangent, one factorization per
-member). Every step is iterated until max|Δv|·h < ``tol``; a divergent or inverted state raises
-:class:`~kdfaces.errors.SimulationBlowUpError`.
+Each iteration solves P Δv = −r with an SPD matrix P = (1 + hα)M + (h² + hβ)K_P and backtracks on E (Armijo),
+so a step never diverges: it decreases E monotonically. K_P starts as the rest stiffness corotated by the bone
+rotation, P = R A_rest Rᵀ with A_rest factored **once** (scipy ``splu``) and all members solved as one
+multi-right-hand-side solve. A member whose iteration contracts slowly (large local rotations of a floppy tip)
+switches to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-tet rotations; PSD), factored
+for that member and **reused** over the following iterations and steps until it contracts slowly again. Members
+stop iterating as soon as they converge (per-member mask): max|Δv|·h < ``tol``. A state that inverts an element,
+or a line search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -38,10 +41,15 @@ __all__ = ["FEMState", "ImplicitEuler", "static_equilibrium", "apply_frame"]
 
 @dataclass
 class FEMState:
-    """Batch of states: node positions ``x`` (B, N, 3) [m] and velocities ``v`` (B, N, 3) [m/s], float64."""
+    """Batch of states: node positions ``x`` (B, N, 3) [m] and velocities ``v`` (B, N, 3) [m/s], float64.
+
+    ``precond`` holds each member's reusable Newton factorization (None: the shared corotated rest matrix); it
+    belongs to the state so that results never depend on what was simulated before.
+    """
 
     x: np.ndarray
     v: np.ndarray
+    precond: list = field(default_factory=list)
 
 
 def apply_frame(G: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -50,82 +58,152 @@ def apply_frame(G: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 class ImplicitEuler:
-    """Backward-Euler stepper with a fixed, once-factored corotated Newton matrix (see module docstring).
+    """Backward-Euler stepper minimising the incremental potential (see module docstring).
 
-    ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails.
+    ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails;
+    ``slow`` [-]: contraction ratio |Δv_k|/|Δv_k−1| above which a member refactors its own warped matrix;
+    ``threads``: batch members are split over this many threads (Warp launches and SuperLU release the GIL).
     """
 
-    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 100):
+    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.25,
+                 threads: int = 1):
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
+        self.slow, self.threads = float(slow), max(1, int(threads))
         m = model.free_masses
-        A = sp.diags((1 + h * model.alpha) * m) + (h * h + h * model.beta) * model.rest_stiffness()
-        self.lu = spla.splu(A.tocsc())
-        self.m_free = m.reshape(-1, 3)
+        self.c_m, self.c_k = 1 + h * model.alpha, h * h + h * model.beta
+        self.M = sp.diags(self.c_m * m).tocsr()
+        A = (self.M + self.c_k * model.rest_stiffness()).tocsc()
+        self.lus = [spla.splu(A) for _ in range(self.threads)]  # one copy per thread
+        self.m_free = m.reshape(-1, 3)[:, :1]
         self.g = np.asarray(model.gravity, dtype=np.float64)
-        self.iterations: list[int] = []
-        self.chord_iter = 12
+        self.iterations: list[int] = []  # iterations of the slowest member, per step
+        self.refactors = 0
 
-    def _newton_update(self, x1: np.ndarray, r: np.ndarray) -> np.ndarray:
-        md, h = self.model, self.h
-        Kt = md.element_stiffness(x1, project=True)
-        Kd = sp.diags((1 + h * md.alpha) * md.free_masses) + h * md.beta * md.rest_stiffness()
-        return np.stack([-spla.splu((Kd + h * h * md.pattern.assemble(Kt[b])).tocsc()).solve(r[b].ravel())
-                         for b in range(len(x1))]).reshape(r.shape)
+    def _factor(self, x1: np.ndarray) -> spla.SuperLU:
+        """Warped-stiffness Newton matrix of one member at positions x1 (N, 3), factored."""
+        md = self.model
+        K = md.pattern.assemble(md.warped_stiffness(md.rotations(x1[None])[0])[0])
+        self.refactors += 1
+        return spla.splu((self.M + self.c_k * K).tocsc())
 
-    def residual(self, state: FEMState, v1: np.ndarray, w_field) -> tuple[np.ndarray, float, np.ndarray]:
-        """r on the free nodes (B, F, 3) [N·s] at trial velocity v1 (B, N, 3); also min det F and x⁺."""
-        md, h = self.model, self.h
-        x1 = state.x + h * v1
-        f, _, detF = md.forces(x1, v1)
-        A, c = w_field
-        w = np.einsum("bij,bnj->bni", A, x1) + c[:, None]
-        fr, m = md.free, self.m_free
-        r = m * (v1[:, fr] - state.v[:, fr]) - h * (f[:, fr] + m * self.g - md.alpha * m * (v1[:, fr] - w[:, fr]))
-        return r, detF, x1
+    def _potential(self, xn, vn, v1, Rn, Aw, cw):
+        """E (B,) [J], gradient r on the free nodes (B, F, 3) [N·s] and min det F (B,) at velocities v1 (B, N, 3)."""
+        md, h, fr, m = self.model, self.h, self.model.free, self.m_free
+        x1 = xn + h * v1
+        f, psi, damp, detF = md.step_terms(x1, v1, Rn)
+        dv = v1[:, fr] - vn[:, fr]
+        u = v1[:, fr] - (np.einsum("bij,bnj->bni", Aw, x1[:, fr]) + cw[:, None])
+        E = (0.5 * (m * dv * dv).sum(axis=(1, 2)) + psi + h * damp + 0.5 * h * md.alpha * (m * u * u).sum(axis=(1, 2))
+             - h * (m * v1[:, fr] * self.g).sum(axis=(1, 2)))
+        uu = u - h * np.einsum("bji,bnj->bni", Aw, u)  # (I − hA)ᵀ u
+        r = m * dv - h * f[:, fr] + h * md.alpha * m * uu - h * m * self.g
+        return E, r, detF.min(axis=1), np.abs(psi) + h * damp
+
+    def _solve(self, lu, state, idx, r, R):
+        """Δv = −P⁻¹ r for members ``idx`` (their gradients r (k, F, 3), bone rotations R (k, 3, 3))."""
+        dv = np.empty_like(r)
+        shared = [j for j, b in enumerate(idx) if state.precond[b] is None]
+        if shared:
+            rl = np.einsum("bji,bnj->bni", R[shared], r[shared])  # into the bone frame: Rᵀ r
+            k, F = len(shared), r.shape[1]
+            sol = lu.solve(np.ascontiguousarray(rl.reshape(k, 3 * F).T)).T.reshape(k, F, 3)
+            dv[shared] = -np.einsum("bij,bnj->bni", R[shared], sol)
+        for j, b in enumerate(idx):
+            if state.precond[b] is not None:
+                dv[j] = -state.precond[b].solve(r[j].ravel()).reshape(-1, 3)
+        return dv
+
+    def _iterate(self, lu, state, members, v1, Rn, Aw, cw, R, where):
+        """Minimise E for the batch members ``members`` (indices) in place on v1; returns iterations used."""
+        h, fr = self.h, self.model.free
+        xn, vn = state.x[members], state.v[members]
+        v = v1[members]
+        E, r, detF, scale = self._potential(xn, vn, v, Rn[members], Aw[members], cw[members])
+        bad = detF <= 0
+        if bad.any():  # the extrapolated guess x + h v inverts: start from the positions at t instead
+            v[np.ix_(np.flatnonzero(bad), fr)] = 0.0
+            E, r, detF, scale = self._potential(xn, vn, v, Rn[members], Aw[members], cw[members])
+            if (detF <= 0).any():
+                b = members[int(np.argmin(detF))]
+                raise SimulationBlowUpError(f"{where}: inverted element (det F = {detF.min():.3g}) in batch member {b}")
+        active = np.arange(len(members))
+        prev = np.full(len(members), np.inf)
+        refactored = np.zeros(len(members), dtype=bool)
+        it = 0
+        while len(active):
+            it += 1
+            if it > self.max_iter:
+                raise SimulationBlowUpError(f"{where}: Newton did not converge in {self.max_iter} iterations "
+                                            f"(last position update {h * prev[active].max():.3g} m > tol {self.tol} m)")
+            a = active
+            ga = members[a]
+            d = self._solve(lu, state, ga, r[a], R[a])
+            size = np.abs(d).max(axis=(1, 2))
+            if not np.isfinite(d).all():
+                raise SimulationBlowUpError(f"{where}: non-finite Newton update in iteration {it}")
+            slope = (d * r[a]).sum(axis=(1, 2))
+            t = np.ones(len(a))
+            todo = np.arange(len(a))
+            E_new, r_new, det_new = E[a].copy(), r[a].copy(), detF[a].copy()
+            while len(todo):
+                vt = v[a[todo]].copy()
+                vt[:, fr] += t[todo, None, None] * d[todo]
+                sel = a[todo]
+                Et, rt, dt, _ = self._potential(xn[sel], vn[sel], vt, Rn[members[sel]], Aw[members[sel]],
+                                                cw[members[sel]])
+                ok = (dt > 0) & (Et <= E[sel] + 1e-4 * t[todo] * slope[todo] + 1e-12 * scale[sel])
+                ok |= (dt > 0) & (h * t[todo] * size[todo] < self.tol)  # below round-off of E: accept
+                done = todo[ok]
+                v[a[done]] = vt[ok]
+                E_new[done], r_new[done], det_new[done] = Et[ok], rt[ok], dt[ok]
+                todo = todo[~ok]
+                t[todo] *= 0.5
+                if len(todo) and t[todo].min() < 1e-6:
+                    b = members[a[todo[0]]]
+                    raise SimulationBlowUpError(f"{where}: line search found no decrease of the incremental "
+                                                f"potential in batch member {b} (inversion or blow-up)")
+            E[a], r[a], detF[a] = E_new, r_new, det_new
+            conv = h * size * t < self.tol
+            ratio = size / prev[a]
+            prev[a] = size
+            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= 8))
+            for j in np.flatnonzero(slow):
+                b = members[a[j]]
+                state.precond[b] = self._factor(xn[a[j]] + h * v[a[j]])
+                refactored[a[j]] = True
+                prev[a[j]] = np.inf
+            active = a[~conv]
+        v1[members] = v
+        return it
 
     def step(self, state: FEMState, G1: np.ndarray, dG1: np.ndarray, *, where: str = "hat") -> None:
         """Advance every member to t + h in place; ``G1``, ``dG1`` (B, 4, 4): bone transform and its rate at t + h
         (attached nodes follow x_a = G1·X_a, v_a = Ġ1·X_a)."""
         md, h = self.model, self.h
-        att, fr = md.attached, md.free
-        X_a = md.mesh.nodes[att]
+        att = md.attached
+        B = len(state.x)
+        if len(state.precond) != B:
+            state.precond = [None] * B
+        x_att1 = apply_frame(G1, md.mesh.nodes[att])
         v1 = state.v.copy()
-        v1[:, att] = np.einsum("bij,nj->bni", dG1[:, :3, :3], X_a) + dG1[:, None, :3, 3]
-        # the attached positions at t + h are exact: choose v so that x + h v hits them
-        x_att1 = apply_frame(G1, X_a)
-        v1[:, att] = (x_att1 - state.x[:, att]) / h
-        w_field = rigid_velocity_field(G1, dG1)
+        v1[:, att] = (x_att1 - state.x[:, att]) / h  # the attached positions at t + h are exact
+        Aw, cw = rigid_velocity_field(G1, dG1)
+        Rn, detn = md.rotations(state.x)
+        if (detn <= 0).any():
+            b = int(np.argmin(detn.min(axis=1)))
+            raise SimulationBlowUpError(f"{where}: inverted element (det F = {detn.min():.3g}) in batch member {b}")
         R = G1[:, :3, :3]
-        B, F = len(state.x), len(fr)
-        prev = np.inf
-        for it in range(1, self.max_iter + 1):
-            r, detF, _ = self.residual(state, v1, w_field)
-            if not np.isfinite(r).all():
-                raise SimulationBlowUpError(f"{where}: non-finite residual in Newton iteration {it}")
-            if it <= self.chord_iter:
-                rl = np.einsum("bji,bnj->bni", R, r)  # into the bone frame: Rᵀ r
-                dv = self.lu.solve(np.ascontiguousarray(rl.reshape(B, 3 * F).T)).T.reshape(B, F, 3)
-                dv = -np.einsum("bij,bnj->bni", R, dv)
-            else:  # the chord iteration stalled: true Newton (PSD-projected tangent), one factorization per member
-                dv = self._newton_update(state.x + h * v1, r)
-            v1[:, fr] += dv
-            step = h * np.abs(dv).max()
-            if step < self.tol:
-                break
-            if not np.isfinite(step) or step > 1e3 * max(prev, self.tol) or step > 1.0:
-                raise SimulationBlowUpError(f"{where}: Newton diverged (position update {step:.3g} m in iteration "
-                                            f"{it}); the step h = {h} s is too large or the material too soft")
-            prev = step
+        chunks = [c for c in np.array_split(np.arange(B), min(self.threads, B)) if len(c)]
+        if len(chunks) == 1:
+            its = [self._iterate(self.lus[0], state, chunks[0], v1, Rn, Aw, cw, R, where)]
         else:
-            raise SimulationBlowUpError(f"{where}: Newton did not converge in {self.max_iter} iterations "
-                                        f"(last position update {step:.3g} m > tol {self.tol} m)")
-        self.iterations.append(it)
+            with ThreadPoolExecutor(len(chunks)) as ex:
+                its = list(ex.map(lambda k: self._iterate(self.lus[k], state, chunks[k], v1, Rn, Aw, cw, R, where),
+                                  range(len(chunks))))
+        self.iterations.append(max(its))
         state.x += h * v1
         state.x[:, att] = x_att1
         state.v[:] = v1
-        if (detF <= 0).any():
-            b = int(np.argmin(detF))
-            raise SimulationBlowUpError(f"{where}: inverted element (det F = {detF[b]:.3g}) in batch member {b}")
 
 
 def static_equilibrium(model: FEMModel, *, G: np.ndarray | None = None, rtol: float = 1e-8, max_iter: int = 60,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["forces_kernel", "hessian_kernel", "mat99"]
+__all__ = ["forces_kernel", "rotations_kernel", "warped_kernel", "hessian_kernel", "mat99"]
 
 wp.config.quiet = True
 
@@ -119,15 +119,17 @@ def deformation(x: wp.array2d(dtype=wp.vec3d), b: int, t: wp.vec4i, Dminv: wp.ma
 
 @wp.kernel
 def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i),
-                  Dminv: wp.array(dtype=wp.mat33d), vol: wp.array(dtype=wp.float64), mu: wp.float64,
-                  lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64, beta_lam: wp.float64,
-                  f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
-                  detF_out: wp.array2d(dtype=wp.float64)):
+                  Dminv: wp.array(dtype=wp.mat33d), vol: wp.array(dtype=wp.float64), Rd: wp.array2d(dtype=wp.mat33d),
+                  mu: wp.float64, lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64,
+                  beta_lam: wp.float64, f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
+                  damp_out: wp.array2d(dtype=wp.float64), detF_out: wp.array2d(dtype=wp.float64)):
     """Elastic + Rayleigh stiffness-damping nodal forces [N] (atomic add into ``f_out`` (B, N)), elastic energy
-    [J] and det F per (batch, tet).
+    [J], damping (Rayleigh dissipation) potential [W] and det F per (batch, tet).
 
-    Damping is β·K_corot·v: the corotated linear stiffness applied to velocities, stress
-    P_d = R(2βμ sym(RᵀḞ) + βλ tr(RᵀḞ) I) with Ḟ = V_s Dm⁻¹; it is exactly βK v at rest and zero for rigid motion.
+    Damping is β·K_corot·v: the linear stiffness corotated by the per-tet rotation ``Rd`` (B, T) applied to
+    velocities, stress P_d = R(2βμ ε + βλ tr(ε) I) with ε = sym(RᵀḞ), Ḟ = V_s Dm⁻¹; its potential
+    D = V(βμ ε:ε + ½βλ tr²ε) (so f_d = −∂D/∂v). It is exactly βK v at rest and zero for rigid motion when Rd is
+    the tet's rotation. The Neo-Hookean path needs no SVD (the rotations are computed once per step).
     """
     b, e = wp.tid()
     t = tets[e]
@@ -135,10 +137,11 @@ def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), 
     F = deformation(x, b, t, Dinv)
     psi, P = energy_stress(F, mu, lam, a, model)
     Fd = deformation(v, b, t, Dinv)
-    R, S = polar(F)
+    R = Rd[b, e]
     E = wp.transpose(R) * Fd
     E = wp.float64(0.5) * (E + wp.transpose(E))
-    P = P + R * (wp.float64(2.0) * beta_mu * E + beta_lam * wp.trace(E) * wp.identity(n=3, dtype=wp.float64))
+    trE = wp.trace(E)
+    P = P + R * (wp.float64(2.0) * beta_mu * E + beta_lam * trE * wp.identity(n=3, dtype=wp.float64))
     H = -vol[e] * P * wp.transpose(Dinv)
     f1 = wp.vec3d(H[0, 0], H[1, 0], H[2, 0])
     f2 = wp.vec3d(H[0, 1], H[1, 1], H[2, 1])
@@ -148,7 +151,38 @@ def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), 
     wp.atomic_add(f_out, b, t[2], f2)
     wp.atomic_add(f_out, b, t[3], f3)
     energy_out[b, e] = vol[e] * psi
+    damp_out[b, e] = vol[e] * (beta_mu * wp.ddot(E, E) + wp.float64(0.5) * beta_lam * trE * trE)
     detF_out[b, e] = wp.determinant(F)
+
+
+@wp.kernel
+def rotations_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i), Dminv: wp.array(dtype=wp.mat33d),
+                     R_out: wp.array2d(dtype=wp.mat33d), detF_out: wp.array2d(dtype=wp.float64)):
+    """Per (batch, tet): rotation R of the polar decomposition F = RS (det R = +1) and det F."""
+    b, e = wp.tid()
+    F = deformation(x, b, tets[e], Dminv[e])
+    R, S = polar(F)
+    R_out[b, e] = R
+    detF_out[b, e] = wp.determinant(F)
+
+
+@wp.kernel
+def warped_kernel(R: wp.array2d(dtype=wp.mat33d), K0: wp.array2d(dtype=wp.float64),
+                  K_out: wp.array3d(dtype=wp.float64)):
+    """Warped (corotated linear) element stiffness K_e = diag(R) K0_e diag(R)ᵀ, 12×12 row-major (B, T, 144) [N/m]
+    from rest blocks ``K0`` (T, 144): PSD, rigid-motion aware, the Newton preconditioner of the hat."""
+    b, e = wp.tid()
+    Re = R[b, e]
+    for I in range(4):
+        for J in range(4):
+            blk = wp.mat33d()
+            for i in range(3):
+                for j in range(3):
+                    blk[i, j] = K0[e, (3 * I + i) * 12 + 3 * J + j]
+            blk = Re * blk * wp.transpose(Re)
+            for i in range(3):
+                for j in range(3):
+                    K_out[b, e, (3 * I + i) * 12 + 3 * J + j] = blk[i, j]
 
 
 @wp.func

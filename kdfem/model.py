@@ -76,6 +76,8 @@ class FEMModel:
         self.wp_vol = wp.array(vol, dtype=wp.float64, device=d)
         self.model_id = MODELS[self.material.model]
         self._K_rest = None
+        self._K0 = None
+        self._wp_K0 = None
 
     @property
     def free_masses(self) -> np.ndarray:
@@ -109,24 +111,63 @@ class FEMModel:
                               self.wp_vol, mu, lam, a, model, int(project)], outputs=[out], device=self.device)
         return out.numpy()
 
+    def rest_blocks(self) -> np.ndarray:
+        """Rest element stiffness blocks (T, 144) [N/m] of linear elasticity (cached)."""
+        if self._K0 is None:
+            self._K0 = self.element_stiffness(self.mesh.nodes[None], project=False, linear=True)[0]
+        return self._K0
+
     def rest_stiffness(self) -> sp.csr_matrix:
         """K at rest with attached DOFs removed, (3F, 3F) CSR [N/m] (linear elasticity; both materials agree)."""
         if self._K_rest is None:
-            self._K_rest = self.pattern.assemble(self.element_stiffness(self.mesh.nodes[None], project=False,
-                                                                        linear=True)[0])
+            self._K_rest = self.pattern.assemble(self.rest_blocks())
         return self._K_rest
 
-    def forces(self, x: np.ndarray, v: np.ndarray, *, damping: bool = True):
-        """Elastic + β-damping nodal forces (B, N, 3) [N], elastic energy per member (B,) [J], min det F (B,)."""
+    def rotations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-tet polar rotations (B, T, 3, 3) and det F (B, T) at positions ``x`` (B, N, 3) [m]."""
+        B, T, d = len(x), self.mesh.num_tets, self.device
+        R = wp.zeros((B, T), dtype=wp.mat33d, device=d)
+        detF = wp.zeros((B, T), dtype=wp.float64, device=d)
+        wp.launch(kernels.rotations_kernel, dim=(B, T), inputs=[wp.array(x, dtype=wp.vec3d, device=d), self.wp_tets,
+                                                                 self.wp_Dminv], outputs=[R, detF], device=d)
+        return R.numpy(), detF.numpy()
+
+    def warped_stiffness(self, R: np.ndarray) -> np.ndarray:
+        """Corotated linear element blocks diag(R) K0 diag(R)ᵀ (B, T, 144) [N/m] for rotations R (B, T, 3, 3)."""
+        B, T, d = len(R), self.mesh.num_tets, self.device
+        if self._wp_K0 is None:
+            self._wp_K0 = wp.array(self.rest_blocks(), dtype=wp.float64, device=d)
+        out = wp.zeros((B, T, 144), dtype=wp.float64, device=d)
+        wp.launch(kernels.warped_kernel, dim=(B, T), inputs=[wp.array(R, dtype=wp.mat33d, device=d), self._wp_K0],
+                  outputs=[out], device=d)
+        return out.numpy()
+
+    def step_terms(self, x: np.ndarray, v: np.ndarray, R: np.ndarray, *, damping: bool = True):
+        """Forces and potentials of one implicit step at positions ``x`` and velocities ``v`` (B, N, 3) [m, m/s],
+        β-damping corotated by the per-tet rotations ``R`` (B, T, 3, 3).
+
+        Returns elastic + damping nodal forces (B, N, 3) [N], elastic energy (B,) [J], damping potential
+        D = ½ vᵀ βK_R v (B,) [W] and det F (B, T).
+        """
         B, T, d = len(x), self.mesh.num_tets, self.device
         mu, lam, a = self.material.kernel_params
         lmu, llam = self.material.lame
         beta = self.beta if damping else 0.0
         f = wp.zeros((B, self.mesh.num_nodes), dtype=wp.vec3d, device=d)
         energy = wp.zeros((B, T), dtype=wp.float64, device=d)
+        damp = wp.zeros((B, T), dtype=wp.float64, device=d)
         detF = wp.zeros((B, T), dtype=wp.float64, device=d)
         wp.launch(kernels.forces_kernel, dim=(B, T),
                   inputs=[wp.array(x, dtype=wp.vec3d, device=d), wp.array(v, dtype=wp.vec3d, device=d),
-                          self.wp_tets, self.wp_Dminv, self.wp_vol, mu, lam, a, self.model_id, beta * lmu,
-                          beta * llam], outputs=[f, energy, detF], device=d)
-        return f.numpy(), energy.numpy().sum(axis=1), detF.numpy().min(axis=1)
+                          self.wp_tets, self.wp_Dminv, self.wp_vol, wp.array(R, dtype=wp.mat33d, device=d),
+                          mu, lam, a, self.model_id, beta * lmu, beta * llam],
+                  outputs=[f, energy, damp, detF], device=d)
+        return f.numpy(), energy.numpy().sum(axis=1), damp.numpy().sum(axis=1), detF.numpy()
+
+    def forces(self, x: np.ndarray, v: np.ndarray, *, damping: bool = True):
+        """Elastic + β-damping nodal forces (B, N, 3) [N], elastic energy per member (B,) [J], min det F (B,);
+        the damping is corotated by the tets' own rotations at ``x``."""
+        R = self.rotations(x)[0] if damping and self.beta > 0 else np.broadcast_to(np.eye(3), (len(x),
+                                                                                           self.mesh.num_tets, 3, 3))
+        f, e, _, detF = self.step_terms(x, v, np.ascontiguousarray(R), damping=damping)
+        return f, e, detF.min(axis=1)

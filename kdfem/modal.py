@@ -24,8 +24,8 @@ import scipy.sparse.linalg as spla
 from kdfaces.errors import KDInputError
 from kdfaces.window import damping_regime, window_1d
 
-__all__ = ["ModalBasis", "ModalWindow", "modal_basis", "gamma_matrix", "modal_activation", "modal_window",
-           "worst_case_spatial_velocity", "perceptual_epsilon"]
+__all__ = ["ModalBasis", "ModalWindow", "ModalAnalysis", "modal_basis", "gamma_matrix", "modal_activation",
+           "modal_window", "worst_case_spatial_velocity", "perceptual_epsilon", "object_diameter", "analyse_model"]
 
 
 @dataclass(frozen=True)
@@ -139,11 +139,15 @@ def worst_case_spatial_velocity(h, *, omega_max: float, v_max: float) -> np.ndar
     return phi
 
 
+def object_diameter(points) -> float:
+    """Diameter d [m] of nodes (N, 3) [m]: the bounding-box diagonal."""
+    p = np.asarray(points, dtype=np.float64)
+    return float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+
+
 def perceptual_epsilon(points) -> float:
     """ε = 0.001·d·√N [m]: every one of N nodes displaced by 0.1 % of the diameter d (bounding-box diagonal)."""
-    p = np.asarray(points, dtype=np.float64)
-    d = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
-    return 1e-3 * d * np.sqrt(len(p))
+    return 1e-3 * object_diameter(points) * np.sqrt(len(points))
 
 
 @dataclass(frozen=True)
@@ -182,3 +186,44 @@ def modal_window(basis: ModalBasis, h, *, epsilon: float, omega_max: float = 4.0
     return ModalWindow(delta_s=float(delta), epsilon_m=float(epsilon), qdot1=qdot,
                        amplitude=qdot / omega1 if omega1 > 0 else float("nan"), h_omega_max=h_w, h_v_max=h_v,
                        regime=basis.regimes[0], h=h)
+
+
+@dataclass(frozen=True)
+class ModalAnalysis:
+    """Everything §5.3 computes for one attached object (see :func:`analyse_model`).
+
+    Attributes:
+        basis: lowest modes; K (d, d) CSR [N/m] and M (d, d) diagonal [kg] on the d = 3F free DOFs; Gamma (d, 6)
+        about the bone origin; phi (6,): the worst-case spatial velocity (ω [rad/s], v [m/s]) of eq. 30;
+        window: the mode-1 window; diameter_m: d [m]; nodes, tets: mesh size; free: free node indices (F,).
+    """
+
+    basis: ModalBasis
+    K: sp.csr_matrix
+    M: sp.dia_matrix
+    Gamma: np.ndarray
+    phi: np.ndarray
+    window: ModalWindow
+    diameter_m: float
+    nodes: int
+    tets: int
+    free: np.ndarray
+
+
+def analyse_model(model, origin, *, count: int = 6, omega_max: float = 4.0, v_max: float = 2.0,
+                  G_rest: np.ndarray | None = None) -> ModalAnalysis:
+    """§5.3 for a :class:`kdfem.model.FEMModel`: K at rest and lumped M with the attached DOFs removed, the lowest
+    ``count`` modes, Γ of the free nodes about the bone ``origin`` (3,) [m] (bone-frame coordinates; ``G_rest``
+    (4, 4): the bone's rest world transform, default identity), h, q̇_1(0) (eq. 30), ε = 0.001·d·√N and δ."""
+    K = model.rest_stiffness()
+    M = sp.diags(model.free_masses)
+    basis = modal_basis(K, M, count=count, alpha=model.alpha, beta=model.beta)
+    nodes = model.nodes_in_frame(G_rest)
+    Gamma = gamma_matrix(nodes[model.free], origin)
+    h = modal_activation(basis, M, Gamma)
+    eps = perceptual_epsilon(nodes)
+    win = modal_window(basis, h, epsilon=eps, omega_max=omega_max, v_max=v_max)
+    phi = worst_case_spatial_velocity(h, omega_max=omega_max, v_max=v_max)
+    return ModalAnalysis(basis=basis, K=sp.csr_matrix(K), M=M, Gamma=Gamma, phi=phi, window=win,
+                         diameter_m=object_diameter(nodes), nodes=model.mesh.num_nodes, tets=model.mesh.num_tets,
+                         free=np.asarray(model.free))

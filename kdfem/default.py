@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from pathlib import Path
 
@@ -16,25 +17,35 @@ from .model import FEMModel
 from .system import HatSystem
 from .tetmesh import TetMesh, embed_surface, tetrahedralize
 
-__all__ = ["DEFAULT_MATERIAL", "hat_tetmesh", "default_hat_system"]
+__all__ = ["DEFAULT_MATERIAL", "DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_EDGE_LENGTH_FAC", "DEFAULT_EPSILON",
+           "hat_tetmesh", "default_hat_system"]
 
-#: A soft felt-like hat: E = 30 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
-DEFAULT_MATERIAL = Material()
+#: A floppy knitted hat: E = 3 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
+DEFAULT_MATERIAL = Material(youngs=3.0e3)
+#: Rayleigh damping C = αM + βK: α [1/s] (relative to the head), β [s]; the tip swing decays within ~1 s.
+DEFAULT_ALPHA, DEFAULT_BETA = 1.0, 0.01
+#: pytetwild target edge length / bbox diagonal and envelope: a coarse (~1k tet) simulation mesh.
+DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = 0.09, 0.004
 
 
-def hat_tetmesh(*, edge_length_fac: float = 0.06, params: HatParams | None = None, cache_dir=None):
-    """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``))."""
+def hat_tetmesh(*, edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, epsilon: float = DEFAULT_EPSILON,
+                coarsen: bool = True, params: HatParams | None = None, cache_dir=None):
+    """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``)).
+
+    The simulation mesh is coarse (loose envelope ``epsilon``, ``coarsen``); the fine surface is embedded in it.
+    """
     p = params or HatParams()
     surf = christmas_hat(p)
     path = None
     if cache_dir is not None:
-        key = abs(hash((repr(p), round(edge_length_fac, 6)))) % 10**12
-        path = Path(cache_dir) / f"hat_tets_{key}.npz"
+        key = hashlib.sha1(repr((p, round(edge_length_fac, 6), round(epsilon, 6), coarsen)).encode()).hexdigest()
+        path = Path(cache_dir) / f"hat_tets_{key[:16]}.npz"
         if path.exists():
             d = np.load(path)
             return surf, TetMesh(d["nodes"], d["tets"]), 0.0
     t0 = time.perf_counter()
-    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, where="hat")
+    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, epsilon=epsilon,
+                          coarsen=coarsen, where="hat")
     dt = time.perf_counter() - t0
     if path is not None:
         with atomic_path(path, ".npz") as tmp:
@@ -42,11 +53,13 @@ def hat_tetmesh(*, edge_length_fac: float = 0.06, params: HatParams | None = Non
     return surf, mesh, dt
 
 
-def default_hat_system(rig, *, edge_length_fac: float = 0.06, material: Material | None = None,
-                       alpha: float = 1.0, beta: float = 0.01, attach_distance: float = 0.02, cache_dir=None,
-                       device: str = "cpu"):
+def default_hat_system(rig, *, edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, material: Material | None = None,
+                       alpha: float = DEFAULT_ALPHA, beta: float = DEFAULT_BETA, attach_distance: float = 0.02,
+                       cache_dir=None, device: str = "cpu", epsilon: float = DEFAULT_EPSILON, coarsen: bool = True,
+                       params: HatParams | None = None, threads: int = 1):
     """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head."""
-    surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, cache_dir=cache_dir)
+    surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=epsilon, coarsen=coarsen, params=params,
+                                 cache_dir=cache_dir)
     att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance)
     model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, alpha=alpha, beta=beta, device=device)
-    return HatSystem(model, embedding=embed_surface(mesh, surf.vertices)), surf, dt
+    return HatSystem(model, embedding=embed_surface(mesh, surf.vertices), threads=threads), surf, dt

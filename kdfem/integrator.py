@@ -65,7 +65,7 @@ class ImplicitEuler:
     ``threads``: batch members are split over this many threads (Warp launches and SuperLU release the GIL).
     """
 
-    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.25,
+    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.5,
                  threads: int = 1):
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
         self.slow, self.threads = float(slow), max(1, int(threads))
@@ -166,7 +166,7 @@ class ImplicitEuler:
             conv = h * size * t < self.tol
             ratio = size / prev[a]
             prev[a] = size
-            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= 8))
+            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= 12))
             for j in np.flatnonzero(slow):
                 b = members[a[j]]
                 state.precond[b] = self._factor(xn[a[j]] + h * v[a[j]])

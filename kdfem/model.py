@@ -135,12 +135,13 @@ class FEMModel:
     def warped_stiffness(self, R: np.ndarray) -> np.ndarray:
         """Corotated linear element blocks diag(R) K0 diag(R)ᵀ (B, T, 144) [N/m] for rotations R (B, T, 3, 3)."""
         B, T, d = len(R), self.mesh.num_tets, self.device
-        if self._wp_K0 is None:
-            self._wp_K0 = wp.array(self.rest_blocks(), dtype=wp.float64, device=d)
-        out = wp.zeros((B, T, 144), dtype=wp.float64, device=d)
-        wp.launch(kernels.warped_kernel, dim=(B, T), inputs=[wp.array(R, dtype=wp.mat33d, device=d), self._wp_K0],
-                  outputs=[out], device=d)
-        return out.numpy()
+        if self._wp_K0 is None:  # (T, 12, 12) → (T, 4, 4, 3, 3) blocks
+            K0 = self.rest_blocks().reshape(T, 4, 3, 4, 3).transpose(0, 1, 3, 2, 4).reshape(T, 16, 3, 3)
+            self._wp_K0 = wp.array(np.ascontiguousarray(K0), dtype=wp.mat33d, device=d)
+        out = wp.empty((B, T, 16), dtype=wp.mat33d, device=d)
+        wp.launch(kernels.warped_kernel, dim=(B, T, 16), inputs=[wp.array(R, dtype=wp.mat33d, device=d),
+                                                                  self._wp_K0], outputs=[out], device=d)
+        return out.numpy().reshape(B, T, 4, 4, 3, 3).transpose(0, 1, 2, 4, 3, 5).reshape(B, T, 144)
 
     def step_terms(self, x: np.ndarray, v: np.ndarray, R: np.ndarray, *, damping: bool = True):
         """Forces and potentials of one implicit step at positions ``x`` and velocities ``v`` (B, N, 3) [m, m/s],

@@ -25,6 +25,7 @@ __all__ = ["HatSystem"]
 class HatSystem:
     """A :class:`FEMModel` attached to the head joint of a face rig, as a KD system.
 
+    ``tol`` [m]: Newton tolerance on the position update; ``threads``: batch members stepped in parallel threads.
     ``trajectory`` arguments of the protocol methods are a :class:`kdfaces.trajectory.KinematicTrajectory` of a
     rig with a skeleton (or a :class:`kdfem.attachment.HeadMotion`). ``observe`` returns node positions
     (B, N, 3) [m]; :meth:`surface` maps them to the embedded render surface.
@@ -33,6 +34,7 @@ class HatSystem:
     model: FEMModel
     embedding: Embedding | None = None
     tol: float = 1e-6
+    threads: int = 1
 
     def __post_init__(self):
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
@@ -42,7 +44,7 @@ class HatSystem:
         """The implicit-Euler stepper for step ``h`` [s] (its Newton matrix factored once and cached)."""
         key = round(float(h), 12)
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, h, tol=self.tol)
+            self._steppers[key] = ImplicitEuler(self.model, h, tol=self.tol, threads=self.threads)
         return self._steppers[key]
 
     def rigid(self, trajectory, times) -> np.ndarray:

@@ -145,10 +145,13 @@ def _self_intersects(m) -> bool:
 
 
 def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str = "surface",
-                   optimize: bool = True) -> TetMesh:
+                   optimize: bool = True, epsilon: float = 1e-3, coarsen: bool = False) -> TetMesh:
     """Tetrahedralise a closed surface (V, 3) [m], (F, 3) with pytetwild; orientation fixed, zero volumes rejected.
 
-    ``edge_length_fac`` is the target edge length as a fraction of the bounding-box diagonal (smaller → more tets).
+    ``edge_length_fac`` is the target edge length as a fraction of the bounding-box diagonal (smaller → more tets);
+    ``epsilon`` the envelope (allowed surface deviation) as a fraction of the diagonal: a thin-walled surface needs
+    small tets to stay within a tight envelope, so a coarse simulation mesh wants a loose envelope and ``coarsen``
+    (the fine surface is then embedded, :func:`embed_surface`, like the paper's coarse cubes, Fig. 6).
     """
     import pytetwild
 
@@ -156,9 +159,12 @@ def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if not (0 < edge_length_fac < 1):
         raise KDInputError(f"edge_length_fac: expected a fraction in (0, 1), got {edge_length_fac}")
+    if not (0 < epsilon < 0.1):
+        raise KDInputError(f"epsilon: expected a fraction in (0, 0.1), got {epsilon}")
     _check_surface(v, f, where)
     nodes, tets = pytetwild.tetrahedralize(v, f.astype(np.int32), edge_length_fac=edge_length_fac,
-                                           optimize=optimize, quiet=True, num_threads=1)
+                                           epsilon=epsilon, coarsen=coarsen, optimize=optimize, quiet=True,
+                                           num_threads=1)
     if len(tets) == 0:
         raise KDInputError(f"{where}: pytetwild produced no tetrahedra")
     used = np.unique(tets)

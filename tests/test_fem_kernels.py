@@ -95,3 +95,22 @@ def test_small_strain_corotated_and_neohookean_agree():
     Kc = model("corotated").element_stiffness(X[None], project=False)
     Kn = model("neohookean").element_stiffness(X[None], project=False)
     np.testing.assert_allclose(Kc, Kn, atol=1e-9 * np.abs(Kc).max())
+
+
+def test_rotations_are_the_polar_factor_and_warped_blocks_rotate_the_rest_blocks():
+    from scipy.linalg import polar
+
+    rng = np.random.default_rng(4)
+    md = model("neohookean")
+    x = np.array([X @ (rotation(rng) @ (np.eye(3) + 0.3 * rng.normal(size=(3, 3)))).T for _ in range(6)])
+    x = x[[det_F(xi) > 0.2 for xi in x]]
+    R, detF = md.rotations(x)
+    for b, xi in enumerate(x):
+        F = np.stack([xi[1] - xi[0], xi[2] - xi[0], xi[3] - xi[0]], 1) @ np.linalg.inv((X[1:] - X[0]).T)
+        np.testing.assert_allclose(R[b, 0], polar(F)[0], atol=1e-12)  # Newton polar iterates to round-off
+        assert abs(detF[b, 0] - np.linalg.det(F)) < 1e-12
+    K = md.warped_stiffness(R)[:, 0].reshape(-1, 12, 12)
+    K0 = md.rest_blocks()[0].reshape(12, 12)
+    for b in range(len(x)):
+        Rb = np.kron(np.eye(4), R[b, 0])
+        np.testing.assert_allclose(K[b], Rb @ K0 @ Rb.T, atol=1e-12 * np.abs(K0).max())

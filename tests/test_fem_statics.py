@@ -49,3 +49,29 @@ def test_energy_decays_monotonically_with_damping_and_no_external_force():
     # implicit Euler dissipates and Rayleigh damping dissipates: E_{k+1} ≤ E_k up to the Newton tolerance
     assert (np.diff(energies) <= 1e-12 * energies[0]).all()
     assert energies[-1] < 0.2 * energies[0]
+
+
+def test_implicit_euler_residual_is_the_gradient_of_the_incremental_potential():
+    # the line search needs r = ∇E exactly (damping corotated by the lagged rotations, α relative to the bone)
+    bar = structured_bar(0.1, 0.02, 0.02, 3, 1, 1)
+    clamp = np.flatnonzero(bar.nodes[:, 0] < 1e-12)
+    md = FEMModel(bar, Material(youngs=1e4, density=200.0), clamp, alpha=2.0, beta=0.02)
+    stepper = ImplicitEuler(md, 0.01)
+    rng = np.random.default_rng(5)
+    xn = (bar.nodes + 1e-3 * rng.normal(size=bar.nodes.shape))[None]
+    vn = 0.1 * rng.normal(size=xn.shape)
+    v = vn + 0.05 * rng.normal(size=xn.shape)
+    Rn = md.rotations(xn)[0]
+    Aw = np.array([[[0.0, -1.0, 0.3], [1.0, 0.0, -0.2], [-0.3, 0.2, 0.0]]])  # rotation rate 1 rad/s
+    cw = np.array([[0.01, 0.0, -0.02]])
+    E, r, _, _ = stepper._potential(xn, vn, v, Rn, Aw, cw)
+    eps = 1e-6  # central differences: error ~ eps²·|∂³E| ≪ the 1e-6 relative tolerance
+    g = np.zeros_like(r)
+    for k, n in enumerate(md.free):
+        for d in range(3):
+            vp, vm = v.copy(), v.copy()
+            vp[0, n, d] += eps
+            vm[0, n, d] -= eps
+            g[0, k, d] = (stepper._potential(xn, vn, vp, Rn, Aw, cw)[0] - stepper._potential(xn, vn, vm, Rn, Aw,
+                                                                                             cw)[0])[0] / (2 * eps)
+    np.testing.assert_allclose(g, r, atol=1e-6 * np.abs(r).max())

@@ -57,23 +57,31 @@ def apply_frame(G: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.einsum("bij,b...nj->bni", G[:, :3, :3], X if X.ndim == 3 else X[None]) + G[:, None, :3, 3]
 
 
+def _factor_spd(A: sp.spmatrix) -> spla.SuperLU:
+    """SuperLU of an SPD matrix in symmetric mode (minimum degree on AᵀA + A, diagonal pivots: ~1.7× faster and
+    a third less fill than the default COLAMD for the hat's Newton matrices)."""
+    return spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                     options={"SymmetricMode": True})
+
+
 class ImplicitEuler:
     """Backward-Euler stepper minimising the incremental potential (see module docstring).
 
     ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails;
-    ``slow`` [-]: contraction ratio |Δv_k|/|Δv_k−1| above which a member refactors its own warped matrix;
+    ``slow`` [-]: contraction ratio |Δv_k|/|Δv_k−1| above which a member refactors its own warped matrix (also
+    after a backtracked line search or ``force_it`` iterations; at most once per member and step);
     ``threads``: batch members are split over this many threads (Warp launches and SuperLU release the GIL).
     """
 
     def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.5,
-                 threads: int = 1):
+                 force_it: int = 12, threads: int = 1):
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
-        self.slow, self.threads = float(slow), max(1, int(threads))
+        self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
         self.c_m, self.c_k = 1 + h * model.alpha, h * h + h * model.beta
         self.M = sp.diags(self.c_m * m).tocsr()
-        A = (self.M + self.c_k * model.rest_stiffness()).tocsc()
-        self.lus = [spla.splu(A) for _ in range(self.threads)]  # one copy per thread
+        A = self.M + self.c_k * model.rest_stiffness()
+        self.lus = [_factor_spd(A) for _ in range(self.threads)]  # one copy per thread
         self.m_free = m.reshape(-1, 3)[:, :1]
         self.g = np.asarray(model.gravity, dtype=np.float64)
         self.iterations: list[int] = []  # iterations of the slowest member, per step
@@ -84,7 +92,7 @@ class ImplicitEuler:
         md = self.model
         K = md.pattern.assemble(md.warped_stiffness(md.rotations(x1[None])[0])[0])
         self.refactors += 1
-        return spla.splu((self.M + self.c_k * K).tocsc())
+        return _factor_spd(self.M + self.c_k * K)
 
     def _potential(self, xn, vn, v1, Rn, Aw, cw):
         """E (B,) [J], gradient r on the free nodes (B, F, 3) [N·s] and min det F (B,) at velocities v1 (B, N, 3)."""
@@ -166,7 +174,7 @@ class ImplicitEuler:
             conv = h * size * t < self.tol
             ratio = size / prev[a]
             prev[a] = size
-            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= 12))
+            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= self.force_it))
             for j in np.flatnonzero(slow):
                 b = members[a[j]]
                 state.precond[b] = self._factor(xn[a[j]] + h * v[a[j]])

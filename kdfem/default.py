@@ -28,11 +28,12 @@ DEFAULT_ALPHA, DEFAULT_BETA = 1.0, 0.01
 DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = 0.09, 0.004
 
 
-def hat_tetmesh(*, edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, epsilon: float = DEFAULT_EPSILON,
-                coarsen: bool = True, params: HatParams | None = None, cache_dir=None):
+def hat_tetmesh(*, edge_length_fac: float = 0.06, epsilon: float = 1e-3, coarsen: bool = False,
+                params: HatParams | None = None, cache_dir=None):
     """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``)).
 
-    The simulation mesh is coarse (loose envelope ``epsilon``, ``coarsen``); the fine surface is embedded in it.
+    Defaults: pytetwild's tight envelope (a fine mesh, ~5k tets). :func:`default_hat_system` asks for a coarse
+    simulation mesh instead (loose envelope ``epsilon``, ``coarsen``) and embeds the fine surface in it.
     """
     p = params or HatParams()
     surf = christmas_hat(p)

@@ -1,7 +1,7 @@
 """Tetrahedral meshes from closed surfaces (pytetwild), quality checks and barycentric surface embedding.
 
 A :class:`TetMesh` holds rest node positions (N, 3) [m] float64 and tets (T, 4) int64, every tet positively
-oriented (det[x1−x0, x2−x0, x3−x0] > 0); flat slivers (|V| ≤ 1e-6 × median) are dropped (an error if more
+oriented (det[x1−x0, x2−x0, x3−x0] > 0); flat slivers (|V| ≤ 1e-4 × median) are dropped (an error if more
 than 5 % are). The smooth render surface is carried by the FEM through an
 :class:`Embedding`: each surface vertex stores its containing (or nearest) tet and barycentric weights.
 """
@@ -73,7 +73,7 @@ def _fix_orientation(nodes, tets, *, where: str) -> TetMesh:
     tets = tets.copy()
     neg = vol < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]
-    tiny = np.abs(vol) <= 1e-6 * np.median(np.abs(vol))
+    tiny = np.abs(vol) <= 1e-4 * np.median(np.abs(vol))
     if tiny.mean() > 0.05:
         raise KDInputError(f"{where}: {int(tiny.sum())} of {len(tets)} tets have (near) zero volume; "
                            "refine or repair the input")

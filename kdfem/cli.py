@@ -85,6 +85,8 @@ def _demo(args) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .window_cli import add_window_parser
+
     ap = argparse.ArgumentParser(prog="kdfem", description="FEM secondary motion attached to an animated head.")
     sub = ap.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the default head nods and turns wearing a floppy hat: rigid | KD | full")
@@ -99,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
+    add_window_parser(sub)
     return ap
 
 
@@ -112,7 +115,8 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"kdfem {args.command}: wrote {Path(args.out) / 'summary.json'}")
+        name = "window.json" if args.command == "window" else "summary.json"
+        print(f"kdfem {args.command}: wrote {Path(args.out) / name}")
     return 0
 
 

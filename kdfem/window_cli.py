@@ -45,11 +45,11 @@ class WindowRun:
 def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = 0.09):
     """(TetMesh, surface vertices (V, 3) [m], faces (F, 3), description) of ``surface`` (a mesh file, or None for
     the default hat). A non-closed surface or one enclosing no volume raises :class:`KDInputError`."""
-    from .default import hat_tetmesh
+    from .default import DEFAULT_EPSILON, hat_tetmesh
     from .tetmesh import load_surface, tetrahedralize
 
-    if surface is None:
-        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac)
+    if surface is None:  # the same coarse simulation mesh the hat demo uses
+        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=DEFAULT_EPSILON, coarsen=True)
         return mesh, np.asarray(surf.vertices), np.asarray(surf.faces), "the default hat"
     if not (np.isfinite(scale) and scale > 0):
         raise KDInputError(f"--scale: expected a positive factor (file units → metres), got {scale}")
@@ -92,7 +92,7 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
 
     from kdfaces.io.rigfiles import load_default_rig
 
-    from .materials import Material
+    from .default import DEFAULT_MATERIAL
     from .modal import analyse_model
     from .modal_verify import linear_response, settle_time, verification_horizon
     from .model import FEMModel
@@ -116,7 +116,7 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
         mesh, _, surf_faces, source = load_object(surface, scale=scale, edge_length_fac=edge_length_fac)
         done("tetrahedralise")
         att, att_text = _attach(mesh.nodes, rig.neutral, distance=attach_distance, below=attach_below)
-        model = FEMModel(mesh, Material(), att, alpha=alpha, beta=beta)
+        model = FEMModel(mesh, DEFAULT_MATERIAL, att, alpha=alpha, beta=beta)  # the demo hat's material
         model.rest_stiffness()
         done("assemble")
         sk = rig.skeleton

@@ -42,14 +42,16 @@ class WindowRun:
     extra: dict = field(default_factory=dict)
 
 
-def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = 0.09):
+def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = 0.09, mesh_epsilon: float | None = None,
+                coarsen: bool = True, cache_dir=None):
     """(TetMesh, surface vertices (V, 3) [m], faces (F, 3), description) of ``surface`` (a mesh file, or None for
     the default hat). A non-closed surface or one enclosing no volume raises :class:`KDInputError`."""
     from .default import DEFAULT_EPSILON, hat_tetmesh
     from .tetmesh import load_surface, tetrahedralize
 
-    if surface is None:  # the same coarse simulation mesh the hat demo uses
-        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=DEFAULT_EPSILON, coarsen=True)
+    if surface is None:  # by default the same coarse simulation mesh the hat demo uses
+        eps = DEFAULT_EPSILON if mesh_epsilon is None else mesh_epsilon
+        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=eps, coarsen=coarsen, cache_dir=cache_dir)
         return mesh, np.asarray(surf.vertices), np.asarray(surf.faces), "the default hat"
     if not (np.isfinite(scale) and scale > 0):
         raise KDInputError(f"--scale: expected a positive factor (file units → metres), got {scale}")
@@ -85,7 +87,8 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
                   alpha: float = 1.0, beta: float = 0.01, edge_length_fac: float = 0.09, scale: float = 1.0,
                   attach_distance: float = 0.02, attach_below: float | None = None, modes: int = 6,
                   nonlinear: bool = True, sweep: bool = True, sweep_stride: int = 10, sweep_h: float = 0.01,
-                  figures: bool = True, progress: bool = True) -> WindowRun:
+                  figures: bool = True, progress: bool = True, mesh_epsilon: float | None = None,
+                  coarsen: bool = True, cache_dir=None) -> WindowRun:
     """Run the whole report; see the module docstring. Returns a :class:`WindowRun`; writes ``out``/report.md,
     window.json and the figures (``figures=False``: window.json only)."""
     from tqdm import tqdm
@@ -113,7 +116,8 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
 
     try:
         rig = load_default_rig()
-        mesh, _, surf_faces, source = load_object(surface, scale=scale, edge_length_fac=edge_length_fac)
+        mesh, _, surf_faces, source = load_object(surface, scale=scale, edge_length_fac=edge_length_fac,
+                                                  mesh_epsilon=mesh_epsilon, coarsen=coarsen, cache_dir=cache_dir)
         done("tetrahedralise")
         att, att_text = _attach(mesh.nodes, rig.neutral, distance=attach_distance, below=attach_below)
         model = FEMModel(mesh, DEFAULT_MATERIAL, att, alpha=alpha, beta=beta)  # the demo hat's material

@@ -9,7 +9,7 @@ import numpy as np
 
 from .ikd.constraints import Constraint
 from .ikd.solver import IKDResult, solve_ikd
-from .io.rigfiles import atomic_path
+from .render import save_figure
 
 __all__ = ["convergence_plot", "offset_grid", "offset_grid_plot"]
 
@@ -41,10 +41,7 @@ def convergence_plot(path, runs: dict[str, IKDResult], *, tolerance_m: float | N
         ax.set_ylabel("max error [mm]" if c.unit == "m" else "max error [m/s]")
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window: float, h: float,
@@ -78,7 +75,4 @@ def offset_grid_plot(path, offsets_m, errors_m, *, title: str, axes_names=("x", 
     ax.set_ylabel(f"target offset {axes_names[1]} [cm]")
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kdfaces.io.rigfiles import atomic_path
+from kdfaces.render import image_grid, save_figure
 
 __all__ = ["hat_filmstrip", "error_plot"]
 
@@ -22,7 +22,6 @@ def hat_filmstrip(path, rig, trajectory, system, hat_faces, rows: dict, times, *
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -50,23 +49,8 @@ def hat_filmstrip(path, rig, trajectory, system, hat_faces, rows: dict, times, *
                 images[label].append(np.asarray(pl.screenshot(return_img=True)))
     finally:
         pl.close()
-    nr, nc = len(rows), len(times)
-    fig, axes = plt.subplots(nr, nc, figsize=(1.9 * nc, 2.3 * nr), squeeze=False)
-    for r, (label, imgs) in enumerate(images.items()):
-        for c, img in enumerate(imgs):
-            ax = axes[r, c]
-            ax.imshow(img)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(f"t = {times[c]:.2f} s", fontsize=9)
-            if c == 0:
-                ax.set_ylabel(label, fontsize=9)
-    fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return Path(path)
+    fig = image_grid(images, [f"t = {t:.2f} s" for t in times], cell_inches=(1.9, 2.3))
+    return save_figure(fig, path)
 
 
 def error_plot(path, times, errors: dict, deviation) -> Path:
@@ -86,7 +70,4 @@ def error_plot(path, times, errors: dict, deviation) -> Path:
     ax.set_title("Hat: KD error vs full simulation (Fig. 10 analog)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)

@@ -39,7 +39,8 @@ def subdivided_rig(rig, levels: int):
 
 def _setup(levels: int, rotation: str, threads: int = 1):
     from kdfaces import FaceSystem, KinematicTrajectory, load_default_rig
-    from kdfaces.demo import demo_animation, demo_face_model
+    from kdfaces.shots.builtin import demo_animation
+    from kdfaces.shots.demo import demo_face_model
 
     rig = load_default_rig()
     if levels:

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from kdfaces.demo import demo_animation
 from kdfaces.errors import SimulationBlowUpError
 from kdfaces.io.rigfiles import load_default_rig
 from kdfaces.kd import simulate_kd
-from kdfaces.trajectory import KinematicTrajectory
-from kdfem.default import DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON, default_hat_system
+from kdfaces.motion.trajectory import KinematicTrajectory
+from kdfaces.shots.builtin import demo_animation
+from kdfem.fem.default_hat import DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON, default_hat_system
 
 #: (edge_length_fac, epsilon, coarsen, label)
 SIZES = ((DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON, True, "~1k (demo)"), (0.06, 0.002, True, "~2k"),

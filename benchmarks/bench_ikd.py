@@ -7,7 +7,8 @@ import statistics
 import time
 
 from kdfaces.ikd import solve_ikd
-from kdfaces.run import DEMO_SHOT, run_shot
+from kdfaces.shots.builtin import DEMO_SHOT
+from kdfaces.shots.run import run_shot
 
 VARIANTS = {"paper": ("paper", 1.0), "scaled": ("paper", 0.8), "secant": ("secant", 1.0)}
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kdfem.window_cli import window_report
+from kdfem.modal.window import window_report
 
 #: (edge_length_fac, envelope epsilon, coarsen, label): the hat benchmark's sizes (pytetwild's counts vary per run)
 SIZES = ((0.06, 0.002, True, "~2k"), (0.09, 0.001, False, "~5k"), (0.02, 0.001, False, "~20k"))

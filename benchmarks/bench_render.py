@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from kdfaces import load_default_rig
-from kdfaces.render import FaceRenderer
+from kdfaces.viz.figures import FaceRenderer
 
 
 def bench_render(repeats: int):

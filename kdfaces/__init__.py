@@ -3,16 +3,17 @@
 Units are SI throughout: metres, seconds, kilograms. Arrays of vertex positions are (N, 3) or (T, N, 3).
 """
 
-from .curves import KeyframeCurve
 from .dynamics import FaceModel, FaceSystem, soft_tissue_settle_map
 from .errors import KDInputError, SimulationBlowUpError
 from .io.livelinkface import livelinkface_animation, read_livelinkface
 from .io.rigfiles import load_default_rig, load_rig, save_npz, save_obj_folder
 from .kd import simulate_full, simulate_kd
-from .kd_report import kd_error_report, write_kd_report
-from .rig import BlendshapeRig, Skeleton
-from .skeleton import JointDrive, SkeletonAnimation
-from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .motion.curves import KeyframeCurve
+from .motion.joints import JointDrive, SkeletonAnimation
+from .motion.trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .rig.blendshapes import BlendshapeRig
+from .rig.skeleton import Skeleton
+from .viz.kd_report import kd_error_report, write_kd_report
 from .window import automatic_window, window_1d
 
 __all__ = [

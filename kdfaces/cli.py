@@ -13,16 +13,16 @@ __all__ = ["main"]
 
 
 def _demo(args) -> dict:
-    from .demo import run_demo
+    from .shots.demo import run_demo
 
     return run_demo(args.out, rig=args.rig, threads=args.threads, exports=args.export)
 
 
 def build_parser() -> argparse.ArgumentParser:
     from .io.export import add_export_option, add_export_rig_parser
-    from .renders import add_render_parser
-    from .run import add_run_parser
-    from .viewer import add_view_parser
+    from .shots.render import add_render_parser
+    from .shots.run import add_run_parser
+    from .viz.viewer import add_view_parser
 
     ap = argparse.ArgumentParser(prog="kdfaces", description="Kinodynamics for blend-shape face rigs.")
     sub = ap.add_subparsers(dest="command", required=True)

@@ -1,92 +1,27 @@
-"""The ``kdfem`` command: ``kdfem demo [--out DIR] [--json]``."""
+"""The ``kdfem`` command: ``kdfem demo`` (the floppy hat) and ``kdfem window [MESH]`` (the modal window report)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 from kdfaces.errors import KDInputError, SimulationBlowUpError
 
-from .default import DEFAULT_EDGE_LENGTH_FAC
+from .fem.default_hat import DEFAULT_EDGE_LENGTH_FAC
 
-__all__ = ["main"]
-
-SWEEP_WINDOWS_S = (0.08, 0.16, 0.32, 0.568)
-
-
-def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0.15) -> np.ndarray:
-    """Indices of up to ``count`` frames of largest ``dev``, at least ``gap`` [s] apart, in time order."""
-    picked: list[int] = []
-    for i in np.argsort(dev)[::-1]:
-        if all(abs(times[i] - times[j]) >= gap for j in picked):
-            picked.append(int(i))
-        if len(picked) == count:
-            break
-    return np.sort(np.array(picked, dtype=np.int64))
+__all__ = ["main", "build_parser"]
 
 
 def _demo(args) -> dict:
-    from kdfaces.demo import demo_animation
-    from kdfaces.io.rigfiles import load_rig
-    from kdfaces.kd import simulate_full, simulate_kd
-    from kdfaces.summary import write_summary
-    from kdfaces.trajectory import KinematicTrajectory
+    from .demo import run_hat_demo
 
-    from .default import default_hat_system
-    from .render import error_plot, hat_filmstrip
-    from .tetmesh import tet_quality
-
-    if args.frame_stride < 1 or args.threads < 1:
-        raise KDInputError("--frame-stride and --threads: expected positive integers")
-    out = Path(args.out)
-    rig = load_rig(args.rig)
-    anim = demo_animation()
-    traj = KinematicTrajectory(rig, anim)
-    system, surf, _ = default_hat_system(rig, edge_length_fac=args.edge_length_fac, cache_dir=out / ".cache",
-                                         threads=args.threads)
-    mesh = system.model.mesh
-    h = args.h
-    times = anim.frame_times[:: args.frame_stride]  # every frame_stride-th frame: "fps" below is their rate
-    full = simulate_full(system, traj, times, h=h)
-    rigid = system.rigid(traj, times)
-    t0 = time.perf_counter()
-    kd = simulate_kd(system, traj, times, args.window, h=h)
-    ms_per_state = 1e3 * (time.perf_counter() - t0) / len(times)
-    sweep, errors = [], {}
-    for w in sorted({*SWEEP_WINDOWS_S, args.window}):
-        x = kd if abs(w - args.window) < 1e-12 else simulate_kd(system, traj, times, w, h=h)
-        errors[w] = np.linalg.norm(x - full, axis=2).max(axis=1)
-        sweep.append({"window_s": w, "max_error_vs_full_m": float(errors[w].max())})
-    dev = np.linalg.norm(full - rigid, axis=2).max(axis=1)
-    strip_idx = _peaks(times, dev)
-    rows = {"kinematic (rigid)": rigid[strip_idx], f"KD δ={args.window:g}s": kd[strip_idx],
-            "full simulation": full[strip_idx]}
-    outputs = [
-        hat_filmstrip(out / "filmstrip_hat.png", rig, traj, system, surf.faces, rows, times[strip_idx]),
-        error_plot(out / "kd_error_vs_full.png", times, errors, dev),
-    ]
-    q = tet_quality(mesh)
-    summary = {
-        "hat": {"nodes": mesh.num_nodes, "tets": mesh.num_tets, "min_tet_volume_m3": q["min_tet_volume_m3"],
-                "min_dihedral_deg": q["min_dihedral_deg"]},
-        "fps": anim.fps / args.frame_stride,
-        "frames": len(times),
-        "kd": {"window_s": args.window, "ms_per_state": ms_per_state, "sweep": sweep,
-               "max_deviation_from_rigid_m": float(dev.max())},
-        "outputs": [str(p.relative_to(out)) for p in outputs],
-    }
-    write_summary(out, summary)
-    return summary
+    return run_hat_demo(args.out, rig=args.rig, window=args.window, h=args.h, edge_length_fac=args.edge_length_fac,
+                        frame_stride=args.frame_stride, threads=args.threads)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .window_cli import add_window_parser
-
     ap = argparse.ArgumentParser(prog="kdfem", description="FEM secondary motion attached to an animated head.")
     sub = ap.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the default head nods and turns wearing a floppy hat: rigid | KD | full")
@@ -101,8 +36,46 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
-    add_window_parser(sub)
+    _add_window_parser(sub)
     return ap
+
+
+def _window(args) -> dict:
+    """The ``kdfem window`` handler: runs :func:`~kdfem.modal.window.window_report`; returns the window.json dict."""
+    from .modal.window import window_report
+
+    run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max, alpha=args.alpha,
+                        beta=args.beta, edge_length_fac=args.edge_length_fac, scale=args.scale,
+                        attach_distance=args.attach_distance, attach_below=args.attach_below, modes=args.modes,
+                        nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride)
+    return run.result
+
+
+def _add_window_parser(subparsers):
+    """Add the ``window`` verb to an argparse ``subparsers``; its ``func`` returns the window.json dict."""
+    p = subparsers.add_parser("window", help="modal KD window of an attached object (§5.3) with a verified report")
+    p.add_argument("surface", nargs="?", default=None, metavar="SURFACE_MESH",
+                   help="closed surface .obj/.ply/.stl/.off in metres (default: the procedural hat)")
+    p.add_argument("--omega-max", type=float, default=4.0, help="largest bone angular speed jump [rad/s] (4)")
+    p.add_argument("--v-max", type=float, default=2.0, help="largest bone linear speed jump [m/s] (2)")
+    p.add_argument("--alpha", type=float, default=1.0, help="Rayleigh mass damping α [1/s] (1)")
+    p.add_argument("--beta", type=float, default=0.01, help="Rayleigh stiffness damping β [s] (0.01)")
+    p.add_argument("--out", default="kd-out/window", help="output folder (default kd-out/window)")
+    p.add_argument("--json", action="store_true", help="print window.json to stdout")
+    p.add_argument("--edge-length-fac", type=float, default=0.09, help="tet edge / bbox diagonal (0.09)")
+    p.add_argument("--scale", type=float, default=1.0, help="file units → metres (1)")
+    p.add_argument("--attach-distance", type=float, default=0.02,
+                   help="attach nodes within this distance of the head surface [m] (0.02)")
+    p.add_argument("--attach-below", type=float, default=None, metavar="Y",
+                   help="attach the nodes with y ≤ Y [m] instead (a mesh not on the head; no Fig. 10 sweep)")
+    p.add_argument("--modes", type=int, default=6, help="modes computed and reported (6)")
+    p.add_argument("--nonlinear", action=argparse.BooleanOptionalAction, default=True,
+                   help="also verify with the nonlinear FEM (default on)")
+    p.add_argument("--sweep", action=argparse.BooleanOptionalAction, default=True,
+                   help="KD-vs-full error over the demo animation, Fig. 10 (default on)")
+    p.add_argument("--sweep-stride", type=int, default=10, help="every n-th demo frame in the sweep (10)")
+    p.set_defaults(func=_window)
+    return p
 
 
 def main(argv=None) -> int:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kdfaces.render import image_grid, save_figure
+from kdfaces.viz.figures import image_grid, save_figure
 
 __all__ = ["hat_filmstrip", "error_plot"]
 

@@ -189,7 +189,7 @@ def preview(rig_path: Path, png: Path) -> None:
     import numpy as np
 
     from kdfaces.io.rigfiles import load_npz
-    from kdfaces.render import filmstrip
+    from kdfaces.viz.figures import filmstrip
 
     rig = load_npz(rig_path)
     smile = rig.blend(rig.weight_vector({"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0}))

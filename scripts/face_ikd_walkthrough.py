@@ -18,9 +18,9 @@ from kdfaces.dynamics import FaceModel, FaceSystem, soft_tissue_settle_map
 from kdfaces.ikd import GaussianBasis, pose_constraint, solve_ikd
 from kdfaces.io.export import export_trajectory
 from kdfaces.kd import simulate_kd
-from kdfaces.poses import kinematic_pose
-from kdfaces.render import filmstrip
-from kdfaces.skeleton import SkeletonAnimation
+from kdfaces.motion.joints import SkeletonAnimation
+from kdfaces.rig.poses import kinematic_pose
+from kdfaces.viz.figures import filmstrip
 from kdfaces.window import automatic_window
 
 

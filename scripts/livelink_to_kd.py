@@ -18,7 +18,7 @@ from kdfaces import KinematicTrajectory, livelinkface_animation, load_default_ri
 from kdfaces.dynamics import FaceModel, FaceSystem, soft_tissue_settle_map
 from kdfaces.io.export import export_trajectory
 from kdfaces.kd import simulate_kd
-from kdfaces.render import filmstrip
+from kdfaces.viz.figures import filmstrip
 from kdfaces.window import automatic_window
 
 DEFAULT_TAKE = Path(__file__).resolve().parents[2] / "shared" / "data" / "livelinkface" / "alex_rom_3.csv"

@@ -23,11 +23,11 @@ SIZE = (200, 240)
 
 def render_references() -> dict[str, np.ndarray]:
     """name → RGB image (H, W, 3) uint8 of each reference render."""
-    from kdfaces.heatmap import HEAT_CMAP, deviation_mm, heat_clim
-    from kdfaces.markers import constraint_markers
-    from kdfaces.render import FaceRenderer
-    from kdfaces.shot import load_shot
-    from kdfaces.viewer import ShotViewer
+    from kdfaces.shots.shotfile import load_shot
+    from kdfaces.viz.figures import FaceRenderer
+    from kdfaces.viz.heatmap import HEAT_CMAP, deviation_mm, heat_clim
+    from kdfaces.viz.markers import constraint_markers
+    from kdfaces.viz.viewer import ShotViewer
 
     shot = load_shot(REFERENCE_SHOT)
     rig = shot.rig

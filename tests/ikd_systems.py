@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kdfaces.curves import KeyframeCurve
+from kdfaces.motion.curves import KeyframeCurve
 
 
 class PointTrajectory:

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from kdfem.materials import Material
-from kdfem.model import FEMModel
-from kdfem.tetmesh import TetMesh
+from kdfem.fem.materials import Material
+from kdfem.fem.model import FEMModel
+from kdfem.geometry.tetmesh import TetMesh
 
 X = np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
 TET = TetMesh(X, np.array([[0, 1, 2, 3]]))

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from kdfem.integrator import FEMState, ImplicitEuler, static_equilibrium
-from kdfem.materials import Material
-from kdfem.model import FEMModel
-from kdfem.tetmesh import structured_bar
+from kdfem.fem.integrator import FEMState, ImplicitEuler, static_equilibrium
+from kdfem.fem.materials import Material
+from kdfem.fem.model import FEMModel
+from kdfem.geometry.tetmesh import structured_bar
 
 L, W, E, RHO = 0.5, 0.05, 1e8, 1000.0
 

@@ -3,17 +3,17 @@
 import numpy as np
 import pytest
 
-from kdfaces.demo import demo_animation
 from kdfaces.errors import KDInputError, SimulationBlowUpError
 from kdfaces.io.rigfiles import load_default_rig
 from kdfaces.kd import simulate_full, simulate_kd
-from kdfaces.trajectory import KinematicTrajectory
-from kdfem.attachment import attached_nodes
-from kdfem.hat import HatParams, christmas_hat
-from kdfem.materials import Material
-from kdfem.model import FEMModel
-from kdfem.system import HatSystem
-from kdfem.tetmesh import embed_surface, tet_quality, tetrahedralize
+from kdfaces.motion.trajectory import KinematicTrajectory
+from kdfaces.shots.builtin import demo_animation
+from kdfem.fem.attachment import attached_nodes
+from kdfem.fem.materials import Material
+from kdfem.fem.model import FEMModel
+from kdfem.fem.system import HatSystem
+from kdfem.geometry.hat import HatParams, christmas_hat
+from kdfem.geometry.tetmesh import embed_surface, tet_quality, tetrahedralize
 
 H = 0.02
 
@@ -72,7 +72,7 @@ def test_bad_input_gives_clear_errors(setup):
 
 @pytest.fixture(scope="module")
 def demo_hat(tmp_path_factory):
-    from kdfem.default import default_hat_system
+    from kdfem.fem.default_hat import default_hat_system
 
     rig = load_default_rig()
     system, _, _ = default_hat_system(rig, cache_dir=tmp_path_factory.mktemp("tets"))

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from kdfaces import BlendshapeRig, FaceAnimation, KeyframeCurve, KinematicTrajectory, ShapeTrack
-from kdfaces.demo import demo_animation, demo_face_model
 from kdfaces.dynamics import FaceModel, FaceSystem
 from kdfaces.errors import KDInputError
 from kdfaces.kd import simulate_full, simulate_kd
-from kdfaces.kd_report import kd_error_report, write_kd_report
+from kdfaces.shots.builtin import demo_animation
+from kdfaces.shots.demo import demo_face_model
+from kdfaces.viz.kd_report import kd_error_report, write_kd_report
 from kdfaces.window import automatic_window
 
 EPS32 = float(np.finfo(np.float32).eps)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kdfaces import KDInputError, KinematicTrajectory, livelinkface_animation, read_livelinkface
-from kdfaces.names import ARKIT_NAMES
+from kdfaces.rig.names import ARKIT_NAMES
 
 HEADER = "Timecode,BlendShapeCount," + ",".join(n[0].upper() + n[1:] for n in ARKIT_NAMES) + \
     ",HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"

@@ -8,7 +8,7 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from kdfaces import KDInputError
-from kdfem.modal import (
+from kdfem.modal.analysis import (
     gamma_matrix,
     modal_activation,
     modal_basis,
@@ -125,9 +125,9 @@ def _euler_bernoulli():
 
 
 def _cantilever_modes(cells_through_thickness):
-    from kdfem.materials import Material
-    from kdfem.model import FEMModel
-    from kdfem.tetmesh import structured_bar
+    from kdfem.fem.materials import Material
+    from kdfem.fem.model import FEMModel
+    from kdfem.geometry.tetmesh import structured_bar
 
     n = cells_through_thickness  # cubic cells: 20n along, 2n across the width, n through the thickness
     bar = structured_bar(CL, CW, CH, 20 * n, 2 * n, n)

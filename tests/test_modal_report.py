@@ -1,7 +1,6 @@
 """The modal window report (§5.3): the hat's predicted δ verified by brute force, ``kdfem window`` on a user STL,
 and the bad inputs (non-closed surface, zero volume, nothing attached)."""
 
-import argparse
 import json
 
 import numpy as np
@@ -9,7 +8,8 @@ import pytest
 import trimesh
 
 from kdfaces import KDInputError
-from kdfem.window_cli import JSON_KEYS, add_window_parser, window_report
+from kdfem.cli import build_parser
+from kdfem.modal.window import JSON_KEYS, window_report
 
 
 def test_hat_window_is_verified_by_brute_force(tmp_path):
@@ -45,9 +45,7 @@ def _post(path, *, drop_face=False, flat=False, offset=(0.0, 0.0, 0.0)):
 
 def test_window_verb_on_a_user_stl(tmp_path):
     stl = _post(tmp_path / "post.stl")
-    ap = argparse.ArgumentParser()
-    add_window_parser(ap.add_subparsers(dest="command"))
-    args = ap.parse_args(["window", str(stl), "--attach-below", "0.005", "--edge-length-fac", "0.12",
+    args = build_parser().parse_args(["window", str(stl), "--attach-below", "0.005", "--edge-length-fac", "0.12",
                           "--no-nonlinear", "--out", str(tmp_path / "out")])
     result = args.func(args)
     assert tuple(result) == JSON_KEYS

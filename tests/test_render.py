@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from kdfaces import KDInputError
-from kdfaces.heatmap import HEAT_CMAP, MIN_CLIM_MM, deviation_mm, heat_clim
-from kdfaces.render import FaceRenderer
+from kdfaces.viz.figures import FaceRenderer
+from kdfaces.viz.heatmap import HEAT_CMAP, MIN_CLIM_MM, deviation_mm, heat_clim
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "tests" / "reference"
@@ -42,14 +42,14 @@ def skin_fraction(img: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def run():
-    from kdfaces.run import run_shot
+    from kdfaces.shots.run import run_shot
 
     return run_shot(SHOT)
 
 
 @pytest.fixture(scope="module")
 def rendered(run, tmp_path_factory):
-    from kdfaces.renders import render_shot
+    from kdfaces.shots.render import render_shot
 
     out = tmp_path_factory.mktemp("render")
     return out, render_shot(run, out, frames=3, exports=["pc2"], progress=False)
@@ -171,7 +171,7 @@ def test_movie_mp4_roundtrip_and_gif_fallback(tmp_path, monkeypatch):
     import imageio.v2 as iio
     from PIL import Image
 
-    from kdfaces import movie
+    from kdfaces.viz import movie
 
     rng = np.random.default_rng(0)
     base = np.kron(rng.integers(0, 255, (6, 8, 3)), np.ones((16, 16, 1))).astype(np.uint8)  # 96×128 blocks
@@ -197,7 +197,7 @@ def test_movie_mp4_roundtrip_and_gif_fallback(tmp_path, monkeypatch):
 
 
 def test_bad_inputs_give_one_clear_error(tmp_path, default_rig):
-    from kdfaces.movie import write_movie
+    from kdfaces.viz.movie import write_movie
 
     rig = default_rig
     with pytest.raises(KDInputError, match=r"points: expected vertex positions of shape \(\.\.\., 4494, 3\)"):
@@ -213,7 +213,7 @@ def test_bad_inputs_give_one_clear_error(tmp_path, default_rig):
 
 
 def test_render_verb(tmp_path):
-    from kdfaces.renders import add_render_parser
+    from kdfaces.shots.render import add_render_parser
 
     ap = argparse.ArgumentParser()
     add_render_parser(ap.add_subparsers())

@@ -5,8 +5,8 @@ import pytest
 
 from kdfaces import KDInputError, load_rig, save_npz, save_obj_folder
 from kdfaces.io.rigfiles import load_makehuman, load_npz, load_obj_folder, read_obj, write_obj
-from kdfaces.names import ARKIT_NAMES, canonical_name
-from kdfaces.rig import BlendshapeRig
+from kdfaces.rig.blendshapes import BlendshapeRig
+from kdfaces.rig.names import ARKIT_NAMES, canonical_name
 
 
 def small_rig(rig, n_shapes=4):

@@ -5,7 +5,8 @@ import pytest
 
 from kdfaces.ikd import solve_ikd
 from kdfaces.kd import simulate_kd
-from kdfaces.run import DEMO_SHOT, run_shot
+from kdfaces.shots.builtin import DEMO_SHOT
+from kdfaces.shots.run import run_shot
 
 
 @pytest.fixture(scope="module")

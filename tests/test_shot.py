@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from kdfaces import KDInputError
-from kdfaces.groups import vertex_group
-from kdfaces.poses import kinematic_pose
-from kdfaces.shot import load_shot
+from kdfaces.rig.groups import vertex_group
+from kdfaces.rig.poses import kinematic_pose
+from kdfaces.shots.shotfile import load_shot
 
 GOOD = """
 name = "t"

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from kdfaces import FaceAnimation, JointDrive, KDInputError, KeyframeCurve, KinematicTrajectory, ShapeTrack
-from kdfaces.demo import demo_animation
-from kdfaces.skeleton import SkeletonAnimation, joint_transforms
+from kdfaces.motion.joints import SkeletonAnimation
+from kdfaces.rig.skeleton import joint_transforms
+from kdfaces.shots.builtin import demo_animation
 
 
 def head_turn(shares=None):

@@ -19,14 +19,14 @@ ATOL = 1e-6
 
 @pytest.fixture(scope="module")
 def shot():
-    from kdfaces.shot import load_shot
+    from kdfaces.shots.shotfile import load_shot
 
     return load_shot(SHOT)
 
 
 @pytest.fixture(scope="module")
 def viewer(shot):
-    from kdfaces.viewer import ShotViewer
+    from kdfaces.viz.viewer import ShotViewer
 
     v = ShotViewer(shot, off_screen=True, size=(320, 240))
     yield v
@@ -126,7 +126,7 @@ def test_play_stop(viewer):
 def test_screenshot_mode(tmp_path):
     from PIL import Image
 
-    from kdfaces.viewer import add_view_parser
+    from kdfaces.viz.viewer import add_view_parser
 
     ap = argparse.ArgumentParser()
     add_view_parser(ap.add_subparsers())

@@ -2,13 +2,7 @@
 constraints."""
 
 from .bases import AsymmetricBell, GaussianBasis, PolyBell, make_basis
-from .constraints import (
-    Constraint,
-    end_effector_constraint,
-    pose_constraint,
-    subset_constraint,
-    velocity_constraint,
-)
+from .constraints import Constraint, end_effector_constraint, pose_constraint, subset_constraint, velocity_constraint
 from .corrections import CorrectedTrajectory, Correction, Slot
 from .solver import IKDResult, independent_check, solve_ikd
 

@@ -75,8 +75,8 @@ def export_rig(rig, out, *, formats=("obj", "gltf")) -> list[Path]:
 
 
 def _export_rig_command(args) -> dict:
-    from ..summary import write_summary
     from .rigfiles import load_rig
+    from .summary import write_summary
 
     if Path(args.rig).suffix in (".gltf", ".glb"):
         from .gltf import load_gltf_rig

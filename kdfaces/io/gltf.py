@@ -6,7 +6,7 @@ and three.js). All triangle primitives of the mesh are concatenated. Accessors m
 sparse, or normalized integers (``KHR_mesh_quantization``). The world transform of the first node that
 instances the mesh is applied, so positions are in scene metres; glTF is y-up in metres like kdfaces, so no
 other conversion happens. Weight animation channels (``target.path == "weights"``) become a
-:class:`~kdfaces.trajectory.FaceAnimation` with one :class:`~kdfaces.trajectory.ShapeTrack` (LINEAR →
+:class:`~kdfaces.motion.trajectory.FaceAnimation` with one :class:`~kdfaces.motion.trajectory.ShapeTrack` (LINEAR →
 ``linear``, CUBICSPLINE → ``hermite``). Skins are not imported.
 
 Export: :func:`save_gltf` writes a rig (and optionally its weight animation, sampled per frame) as ``.gltf``
@@ -23,13 +23,14 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from ..curves import KeyframeCurve
 from ..errors import KDInputError, check_finite
-from ..names import canonical_name
-from ..rig import BlendshapeRig
-from ..skeleton import SkeletonAnimation
-from ..trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
-from .pointcache import infer_fps, write_bytes_atomic
+from ..motion.curves import KeyframeCurve
+from ..motion.joints import SkeletonAnimation
+from ..motion.trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from ..rig.blendshapes import BlendshapeRig
+from ..rig.names import canonical_name
+from .atomic import write_bytes_atomic
+from .pointcache import infer_fps
 
 __all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf"]
 

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..curves import KeyframeCurve
 from ..errors import KDInputError
-from ..names import ARKIT_NAMES, canonical_name
-from ..skeleton import JointDrive, SkeletonAnimation
-from ..trajectory import FaceAnimation, ShapeTrack
+from ..motion.curves import KeyframeCurve
+from ..motion.joints import JointDrive, SkeletonAnimation
+from ..motion.trajectory import FaceAnimation, ShapeTrack
+from ..rig.names import ARKIT_NAMES, canonical_name
 
 __all__ = ["LiveLinkTake", "read_livelinkface", "livelinkface_animation"]
 
@@ -30,7 +30,7 @@ _HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 @dataclass(frozen=True)
 class LiveLinkTake:
     """A parsed take. ``times`` [s] from the first sample, shape (T,); ``weights`` (T, 52) in ARKit order
-    (:data:`~kdfaces.names.ARKIT_NAMES`); ``head`` (T, 3) yaw/pitch/roll [rad] or None; ``rate_hz`` inferred;
+    (:data:`~kdfaces.rig.names.ARKIT_NAMES`); ``head`` (T, 3) yaw/pitch/roll [rad] or None; ``rate_hz`` inferred;
     ``rows_read`` data rows in the file (rows repeating an earlier timecode are dropped from T)."""
 
     path: Path

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from .rigfiles import atomic_path
+from .atomic import atomic_path, write_bytes_atomic
 
 __all__ = [
-    "PointCache", "PC2_HEADER", "write_usd", "read_usd", "write_pc2", "read_pc2", "infer_fps", "write_bytes_atomic",
+    "PointCache", "PC2_HEADER", "write_usd", "read_usd", "write_pc2", "read_pc2", "infer_fps",
 ]
 
 PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, sampling [frames], samples
@@ -50,17 +50,6 @@ class PointCache:
     times: np.ndarray
     fps: float
     faces: np.ndarray | None = None
-
-
-def write_bytes_atomic(path, payload: bytes) -> Path:
-    """Write ``payload`` to ``path`` via a temporary file; any failure leaves no file and raises one error."""
-    p = Path(path)
-    with atomic_path(p) as tmp:
-        try:
-            tmp.write_bytes(payload)
-        except OSError as e:
-            raise KDInputError(f"{p}: write failed ({e.strerror or e})") from None
-    return p
 
 
 def infer_fps(times, *, fps: float | None = None, where: str = "point cache") -> float:

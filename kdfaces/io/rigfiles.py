@@ -6,47 +6,23 @@ All loaders return a :class:`~kdfaces.rig.BlendshapeRig` in metres; unit convers
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from ..rig import BlendshapeRig, Skeleton
+from ..rig.blendshapes import BlendshapeRig
+from ..rig.skeleton import Skeleton
+from .atomic import atomic_path
 
 __all__ = [
     "DEFAULT_RIG_PATH", "load_default_rig", "load_rig", "load_npz", "save_npz", "read_obj", "write_obj",
-    "load_obj_folder", "save_obj_folder", "load_makehuman", "atomic_path",
+    "load_obj_folder", "save_obj_folder", "load_makehuman",
 ]
 
 DEFAULT_RIG_PATH = Path(os.environ.get("KDFACES_MESHES", Path(__file__).resolve().parents[2] / "meshes")) / \
     "makehuman_head.npz"
 MAKEHUMAN_UNIT_M = 0.1  # MakeHuman OBJ and .target files are in decimetres
-
-
-class atomic_path:
-    """Context manager yielding a temporary path next to ``path``; renamed onto ``path`` only on success."""
-
-    def __init__(self, path, suffix: str | None = None):
-        self.path = Path(path)
-        self.suffix = suffix if suffix is not None else self.path.suffix
-
-    def __enter__(self) -> Path:
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.suffix, dir=self.path.parent)
-        except OSError as e:
-            raise KDInputError(f"{self.path}: cannot write here ({e.strerror})") from None
-        os.close(fd)
-        self.tmp = Path(tmp)
-        return self.tmp
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            os.replace(self.tmp, self.path)
-        else:
-            self.tmp.unlink(missing_ok=True)
-        return False
 
 
 def _require_file(path) -> Path:

@@ -1,0 +1,150 @@
+"""Kinematic trajectories x_K(t), ẋ_K(t), ẍ_K(t) of a face rig (paper §3: the PD target of the simulation).
+
+A :class:`FaceAnimation` holds blend-shape weight curves and head-joint rotation curves; a
+:class:`KinematicTrajectory` evaluates the rig under it for arrays of times: blend shapes, then LBS by the neck
+and head joints, with exact derivatives from the curves (no finite differences).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import KDInputError, check_finite
+from ..rig.blendshapes import BlendshapeRig
+from ..rig.skeleton import joint_transforms, skin
+from .curves import KeyframeCurve
+from .joints import SkeletonAnimation
+
+__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory"]
+
+
+@dataclass(frozen=True)
+class ShapeTrack:
+    """A curve whose channels are the weights of the named shapes (ARKit names or aliases)."""
+
+    names: tuple[str, ...]
+    curve: KeyframeCurve
+
+    def __post_init__(self):
+        if len(self.names) != self.curve.channels:
+            raise KDInputError(f"shape track: {len(self.names)} names for a {self.curve.channels}-channel curve")
+
+
+@dataclass(frozen=True)
+class FaceAnimation:
+    """Blend-shape weight tracks and head rotation drives over ``[start, end]`` seconds, sampled at ``fps``."""
+
+    tracks: tuple[ShapeTrack, ...] = ()
+    skeleton: SkeletonAnimation = field(default_factory=SkeletonAnimation)
+    start: float = 0.0
+    end: float = 1.0
+    fps: float = 25.0
+    name: str = "animation"
+
+    def __post_init__(self):
+        if not (np.isfinite(self.end) and np.isfinite(self.start) and self.end > self.start):
+            raise KDInputError(f"animation {self.name!r}: expected end > start, got [{self.start}, {self.end}]")
+        if not (self.fps > 0):
+            raise KDInputError(f"animation {self.name!r}: fps must be positive, got {self.fps}")
+
+    @property
+    def duration(self) -> float:
+        return self.end - self.start
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        """Times [s] of every frame in the shot, shape (F,)."""
+        n = int(round(self.duration * self.fps)) + 1
+        return self.start + np.arange(n) / self.fps
+
+
+class KinematicTrajectory:
+    """x_K(t) of a rig under an animation. Arrays are (T, N, 3) in metres, m/s and m/s².
+
+    Time ranges outside the shot hold the end poses (curves are clamped), so KD windows may reach before the start.
+    """
+
+    def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, chunk: int = 16,
+                 cache_bytes: int = 256 * 2**20):
+        self.rig = rig
+        self.animation = animation
+        self.chunk = int(chunk)
+        # evaluated samples, keyed by time in ns: KD windows, IKD iterations and scrubbing re-read the same grid
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cache_max = max(1, int(cache_bytes) // (3 * rig.num_vertices * 3 * 8))
+        self._tracks = [(np.asarray(rig.shape_indices(t.names, where=f"animation {animation.name!r}")), t.curve)
+                        for t in animation.tracks]
+        if animation.skeleton.drives and rig.skeleton is None:
+            raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+
+    @property
+    def num_vertices(self) -> int:
+        return self.rig.num_vertices
+
+    @property
+    def start(self) -> float:
+        return self.animation.start
+
+    @property
+    def end(self) -> float:
+        return self.animation.end
+
+    @property
+    def fps(self) -> float:
+        return self.animation.fps
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        return self.animation.frame_times
+
+    def weights(self, times, order: int = 2):
+        """Shape weights and derivatives: ``order + 1`` arrays (T, K)."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        out = [np.zeros((len(t), self.rig.num_shapes)) for _ in range(order + 1)]
+        for idx, curve in self._tracks:
+            vals = curve.evaluate(t, order)
+            for o in range(order + 1):
+                out[o][:, idx] += vals[o]
+        return tuple(out)
+
+    def evaluate(self, times, order: int = 2):
+        """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        check_finite(t, "trajectory times")
+        if order not in (0, 1, 2):
+            raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
+        keys = np.round(t * 1e9).astype(np.int64).tolist()
+        if len(set(keys)) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
+            parts = [self._evaluate_chunk(t[i:i + self.chunk]) for i in range(0, len(t), self.chunk)]
+            return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+        first = {}
+        for k, tk in zip(keys, t.tolist()):
+            if k not in self._cache:
+                first.setdefault(k, tk)  # times within 1 ns share a sample, evaluated at the first one asked for
+        missing = list(first)
+        for i in range(0, len(missing), self.chunk):
+            part = np.asarray([first[k] for k in missing[i:i + self.chunk]], dtype=np.float64)
+            x, v, a = self._evaluate_chunk(part)
+            for j, k in enumerate(missing[i:i + self.chunk]):
+                self._cache[k] = np.stack([x[j], v[j], a[j]])
+                if len(self._cache) > self._cache_max:
+                    self._cache.popitem(last=False)
+        samples = np.stack([self._cache[k][: order + 1] for k in keys], axis=1)
+        return tuple(samples[o] for o in range(order + 1))
+
+    def positions(self, times) -> np.ndarray:
+        return self.evaluate(times, order=0)[0]
+
+    def _evaluate_chunk(self, t):
+        w = self.weights(t, 2)
+        y = self.rig.blend(w[0])
+        dy = self.rig.blend_offsets(w[1])
+        ddy = self.rig.blend_offsets(w[2])
+        skel = self.rig.skeleton
+        if skel is not None and self.animation.skeleton.drives:
+            G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
+            y, dy, ddy = skin(skel, G, y, dy, ddy)
+        return y, dy, ddy

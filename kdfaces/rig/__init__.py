@@ -1,0 +1,12 @@
+"""Rigs: blend-shape meshes, ARKit names, vertex groups, the neck/head skeleton (FK, LBS) and single poses."""
+
+from .blendshapes import BlendshapeRig
+from .groups import GROUP_SHAPES, vertex_group
+from .names import ARKIT_NAMES, alias_key, canonical_name, match_names
+from .poses import kinematic_pose, rig_pose
+from .skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms, skin
+
+__all__ = [
+    "BlendshapeRig", "GROUP_SHAPES", "vertex_group", "ARKIT_NAMES", "alias_key", "canonical_name", "match_names",
+    "kinematic_pose", "rig_pose", "HEAD_CHAIN_SPLIT", "Skeleton", "joint_transforms", "skin",
+]

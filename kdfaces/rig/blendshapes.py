@@ -1,0 +1,120 @@
+"""Blend-shape face rigs with an optional neck/head skeleton.
+
+x(w) = x0 + Σ_k w_k Δ_k (delta blend shapes), then linear blend skinning by the head joints
+(kinematics lecture, "Skinning": v' = Σ_j w_ij P_j B_j⁻¹ v); see :mod:`kdfaces.rig.skeleton`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import KDInputError, check_finite
+from .names import canonical_name, match_names
+from .skeleton import Skeleton
+
+__all__ = ["BlendshapeRig"]
+
+
+@dataclass(frozen=True)
+class BlendshapeRig:
+    """A delta blend-shape rig.
+
+    Attributes:
+        neutral: rest vertex positions [m], shape (N, 3), float64.
+        deltas: per-shape vertex offsets [m], shape (K, N, 3), float32.
+        faces: triangle vertex indices, shape (F, 3), int64.
+        shape_names: K names, ARKit spelling where the shape is an ARKit shape.
+        skeleton: optional neck/head joints and skin weights.
+        name: a label for reports.
+    """
+
+    neutral: np.ndarray
+    deltas: np.ndarray
+    faces: np.ndarray
+    shape_names: tuple[str, ...]
+    skeleton: Skeleton | None = None
+    name: str = "rig"
+    _flat: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        n = self.neutral
+        if n.ndim != 2 or n.shape[1] != 3 or len(n) == 0:
+            raise KDInputError(f"rig {self.name!r} neutral: expected shape (N, 3), got {n.shape}")
+        if self.deltas.ndim != 3 or self.deltas.shape[1:] != n.shape:
+            raise KDInputError(f"rig {self.name!r} deltas: expected shape (K, {len(n)}, 3) matching the neutral's "
+                               f"{len(n)} vertices, got {self.deltas.shape}")
+        if len(self.shape_names) != len(self.deltas):
+            raise KDInputError(f"rig {self.name!r}: {len(self.shape_names)} shape names for {len(self.deltas)} deltas")
+        if len(set(self.shape_names)) != len(self.shape_names):
+            raise KDInputError(f"rig {self.name!r}: duplicate shape names")
+        f = self.faces
+        if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(n))):
+            raise KDInputError(f"rig {self.name!r} faces: expected (F, 3) indices in [0, {len(n)}), got {f.shape}")
+        check_finite(n, f"rig {self.name!r} neutral")
+        check_finite(self.deltas, f"rig {self.name!r} deltas")
+        if self.skeleton is not None and len(self.skeleton.weights) != len(n):
+            raise KDInputError(f"rig {self.name!r}: skin weights for {len(self.skeleton.weights)} vertices, mesh has "
+                               f"{len(n)}")
+        object.__setattr__(self, "_flat", self.deltas.reshape(len(self.deltas), 3 * len(n)).astype(np.float64))
+
+    @classmethod
+    def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig") -> BlendshapeRig:
+        """Build a rig converting arrays to the dtype contract (float64 positions, float32 deltas, int64 faces)."""
+        return cls(
+            neutral=np.ascontiguousarray(neutral, dtype=np.float64),
+            deltas=np.ascontiguousarray(deltas, dtype=np.float32),
+            faces=np.ascontiguousarray(faces, dtype=np.int64),
+            shape_names=tuple(canonical_name(str(s)) for s in shape_names),
+            skeleton=skeleton,
+            name=name,
+        )
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.neutral)
+
+    @property
+    def num_shapes(self) -> int:
+        return len(self.deltas)
+
+    @property
+    def diameter(self) -> float:
+        """Bounding-box diagonal of the neutral [m]."""
+        return float(np.linalg.norm(self.neutral.max(axis=0) - self.neutral.min(axis=0)))
+
+    def shape_indices(self, names, *, where: str = "shape names") -> list[int]:
+        """Indices of ``names`` (ARKit aliases, case-insensitive); unknown names raise :class:`KDInputError`."""
+        return match_names(names, self.shape_names, where=where)
+
+    def weight_vector(self, weights: dict[str, float], *, where: str = "weights") -> np.ndarray:
+        """A (K,) weight vector from a ``{shape name: weight}`` mapping."""
+        w = np.zeros(self.num_shapes)
+        idx = self.shape_indices(list(weights), where=where)
+        vals = np.array([float(v) for v in weights.values()])
+        check_finite(vals, where)
+        w[idx] = vals
+        return w
+
+    def blend(self, weights) -> np.ndarray:
+        """Blend-shape positions x0 + Σ w_k Δ_k [m] for weights (K,) or (T, K) → (N, 3) or (T, N, 3)."""
+        w = np.asarray(weights, dtype=np.float64)
+        single = w.ndim == 1
+        w2 = np.atleast_2d(w)
+        if w2.shape[1] != self.num_shapes:
+            raise KDInputError(f"weights: expected {self.num_shapes} columns (one per shape), got {w2.shape[1]}")
+        check_finite(w2, "weights")
+        x = self.blend_offsets(w2) + self.neutral
+        return x[0] if single else x
+
+    def blend_offsets(self, weights) -> np.ndarray:
+        """Σ w_k Δ_k [m] (no neutral) for weights (T, K) → (T, N, 3); used for derivatives.
+
+        Shapes whose weight is zero at every time are skipped (weight derivatives are mostly zero).
+        """
+        w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        nz = np.flatnonzero(np.abs(w2).max(axis=0) > 0)
+        if len(nz) == 0:
+            return np.zeros((len(w2), self.num_vertices, 3))
+        return (w2[:, nz] @ self._flat[nz]).reshape(len(w2), -1, 3)

@@ -1,0 +1,141 @@
+"""Forward kinematics and linear blend skinning with analytic time derivatives.
+
+Kinematics lecture: a joint's world transform is the product of its ancestors' local transforms (FK), and a
+skinned vertex is v' = Σ_j w_ij P_j B_j⁻¹ v. Our rest pose has identity joint rotations, so P_j B_j⁻¹ is the
+product of local rotations about the rest pivots: L_j = T(p_j) R_j T(−p_j), G_j = G_parent(j) L_j.
+
+Each transform travels with its first and second time derivatives as a triplet (A, Ȧ, Ä); the product rule
+(AB)˙ = ȦB + AḂ, (AB)¨ = ÄB + 2ȦḂ + AB̈ carries them through the chain, so ẋ_K and ẍ_K are exact.
+
+Angles are (yaw, pitch, roll) [rad] about the rig's (y, x, z) axes (y up, face looking +z): R = R_y R_x R_z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import KDInputError, check_finite
+
+__all__ = ["Skeleton", "HEAD_CHAIN_SPLIT", "joint_transforms", "skin"]
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A joint hierarchy in its rest pose (identity rotations).
+
+    Attributes:
+        names: joint names, length J.
+        positions: rest pivot of each joint [m], shape (J, 3), float64.
+        parents: parent index of each joint (-1 for a root), shape (J,), int64; parents precede children.
+        weights: skin weight of each vertex on each joint, shape (N, J), float64. Rows may sum to less than one:
+            the remainder belongs to the fixed body the rig is attached to (e.g. the torso below the neck).
+    """
+
+    names: tuple[str, ...]
+    positions: np.ndarray
+    parents: np.ndarray
+    weights: np.ndarray
+
+    def __post_init__(self):
+        J = len(self.names)
+        if self.positions.shape != (J, 3) or self.parents.shape != (J,) or self.weights.shape[1] != J:
+            raise KDInputError(f"skeleton: expected positions (J,3), parents (J,), weights (N,J) with J={J}; got "
+                               f"{self.positions.shape}, {self.parents.shape}, {self.weights.shape}")
+        for j, p in enumerate(self.parents):
+            if p >= j:
+                raise KDInputError(f"skeleton: joint {self.names[j]!r} has parent index {p}; parents must come first")
+        check_finite(self.weights, "skeleton weights")
+        if (self.weights < -1e-6).any() or (self.weights.sum(axis=1) > 1 + 1e-4).any():
+            raise KDInputError("skeleton weights: expected non-negative weights summing to at most 1 per vertex")
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KDInputError(f"skeleton: unknown joint {name!r}; joints are {list(self.names)}") from None
+
+
+#: How a whole-head rotation is shared by the neck chain (fractions sum to one).
+HEAD_CHAIN_SPLIT = {"neck01": 0.15, "neck02": 0.15, "neck03": 0.2, "head": 0.5}
+
+_AXES = (1, 0, 2)  # yaw about y, pitch about x, roll about z
+
+
+def _axis_rotation(axis: int, th, dth, ddth):
+    """R(θ(t)) about a coordinate axis and its first and second time derivatives, each (T, 3, 3)."""
+    T = len(th)
+    K = np.zeros((3, 3))
+    a, b = [(1, 2), (2, 0), (0, 1)][axis]
+    K[b, a], K[a, b] = 1.0, -1.0  # skew matrix of the unit axis
+    K2 = K @ K
+    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
+    R = np.eye(3) + s * K + (1 - c) * K2
+    R_th = c * K + s * K2
+    R_thth = -s * K + c * K2
+    dth, ddth = dth[:, None, None], ddth[:, None, None]
+    assert R.shape == (T, 3, 3)
+    return R, R_th * dth, R_thth * dth**2 + R_th * ddth
+
+
+def _mul(A, B):
+    """Product of two derivative triplets of (…, n, n) matrices."""
+    a, da, dda = A
+    b, db, ddb = B
+    return a @ b, da @ b + a @ db, dda @ b + 2 * (da @ db) + a @ ddb
+
+
+def joint_transforms(skeleton: Skeleton, angles):
+    """World transforms of every joint, as a triplet of (T, J, 4, 4) arrays (value, d/dt, d²/dt²).
+
+    ``angles`` is the triplet from :meth:`SkeletonAnimation.joint_angles` (order 2).
+    """
+    th, dth, ddth = angles
+    T, J, _ = th.shape
+    G = [None] * J
+    for j in range(J):
+        R = (np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3, 3)), np.zeros((T, 3, 3)))
+        for c, axis in enumerate(_AXES):
+            R = _mul(R, _axis_rotation(axis, th[:, j, c], dth[:, j, c], ddth[:, j, c]))
+        p = skeleton.positions[j]
+        L = []
+        for k, Rk in enumerate(R):
+            M = np.zeros((T, 4, 4))
+            M[:, :3, :3] = Rk
+            M[:, :3, 3] = (p if k == 0 else 0.0) - Rk @ p
+            if k == 0:
+                M[:, 3, 3] = 1.0
+            L.append(M)
+        parent = skeleton.parents[j]
+        G[j] = tuple(L) if parent < 0 else _mul(G[parent], tuple(L))
+    return tuple(np.stack([g[k] for g in G], axis=1) for k in range(3))
+
+
+def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
+    """Linear blend skinning of blend-shape positions with derivatives.
+
+    Args:
+        transforms: triplet of joint world transforms (T, J, 4, 4) from :func:`joint_transforms`.
+        y, dy, ddy: blend-shape positions [m] and their time derivatives, each (T, N, 3).
+    Returns:
+        x, ẋ, ẍ, each (T, N, 3): x = Σ_j w_ij G_j ỹ + (1 − Σ_j w_ij) y, differentiated by the product rule:
+        ẋ = Σ_j w_ij (Ġ_j ỹ + G_j ẏ) + r ẏ,  ẍ = Σ_j w_ij (G̈_j ỹ + 2 Ġ_j ẏ + G_j ÿ) + r ÿ  (r = 1 − Σ_j w_ij).
+    """
+    W = skeleton.weights
+    rest = (1.0 - W.sum(axis=1))[None, :, None]
+    Wt = W.T[None, :, :, None]  # (1, J, N, 1)
+
+    def apply(G, v, affine: bool):
+        """Σ_j w_ij (R_j v_i [+ t_j]) for (T, J, 4, 4) transforms and (T, N, 3) vectors, by batched matmul."""
+        P = np.matmul(v[:, None], np.swapaxes(G[:, :, :3, :3], -1, -2))  # (T, J, N, 3)
+        if affine:
+            P += G[:, :, None, :3, 3]
+        return (P * Wt).sum(axis=1)
+
+    G, dG, ddG = transforms
+    x = apply(G, y, True) + rest * y
+    if dy is None:
+        return x, None, None
+    dx = apply(dG, y, True) + apply(G, dy, False) + rest * dy
+    ddx = apply(ddG, y, True) + 2.0 * apply(dG, dy, False) + apply(G, ddy, False) + rest * ddy
+    return x, dx, ddx

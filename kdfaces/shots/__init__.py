@@ -1,0 +1,11 @@
+"""Shots: TOML shot files (rig, animation, dynamics, constraints, solver), running them (KD of every frame, the
+IKD solve), rendering them, and the built-in demo shot ``demo.toml``."""
+
+from .builtin import DEMO_SHOT, demo_animation
+from .demo import run_demo
+from .render import render_shot
+from .run import ShotRun, run_shot, run_summary, write_run_outputs
+from .shotfile import Shot, load_shot, parse_shot
+
+__all__ = ["DEMO_SHOT", "demo_animation", "run_demo", "render_shot", "ShotRun", "run_shot", "run_summary",
+           "write_run_outputs", "Shot", "load_shot", "parse_shot"]

@@ -1,0 +1,214 @@
+"""Run a shot: KD of every frame, the IKD solve, KD of the corrected trajectory, the independent check, reports.
+
+``kdfaces run SHOT.toml`` and ``kdfaces demo`` (the built-in ``kdfaces/shots/demo.toml``) both come here.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import KDInputError
+from ..ikd.solver import IKDResult, independent_check, solve_ikd
+from ..kd import simulate_kd
+from .shotfile import Shot, load_shot
+
+__all__ = ["ShotRun", "run_shot", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
+           "add_run_parser"]
+
+
+
+@dataclass
+class ShotRun:
+    """Everything a run computed.
+
+    Attributes:
+        times: frame times [s], shape (F,).
+        kinematic, kd: x_K and x_KD at every frame [m], shape (F, N, 3).
+        ikd: x_KD of the corrected trajectory x_K + f at every frame [m], (F, N, 3); None without constraints.
+        ikd_result: the solver's result (None without constraints); check_errors: the independent check
+            (each constrained KD state recomputed from scratch with the final correction) [m or m/s], (C,).
+        window_s, window_auto_s, epsilon_m: the KD window used, the automatic one, and its ε [m].
+        ms_per_state: wall time of the all-frames KD batch divided by the frames [ms].
+    """
+
+    shot: Shot
+    system: object
+    times: np.ndarray
+    kinematic: np.ndarray
+    kd: np.ndarray
+    ikd: np.ndarray | None
+    ikd_result: IKDResult | None
+    check_errors: np.ndarray | None
+    window_s: float
+    window_auto_s: float
+    epsilon_m: float
+    ms_per_state: float
+
+    @property
+    def h(self) -> float:
+        return self.shot.step
+
+    @property
+    def final(self) -> np.ndarray:
+        """The final trajectory of the shot: IKD when it has constraints, else KD, (F, N, 3) [m]."""
+        return self.kd if self.ikd is None else self.ikd
+
+
+def run_shot(shot: Shot | str | Path, *, window: float | None = None, solve: bool = True, device="cpu",
+             threads: int = 2, update: str | None = None, damping: float | None = None) -> ShotRun:
+    """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
+
+    ``window`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``damping`` override the solver's.
+    """
+    from ..dynamics import FaceSystem
+    from ..window import automatic_window
+
+    if not isinstance(shot, Shot):
+        shot = load_shot(shot)
+    model = shot.model()
+    system = FaceSystem(model, device=device, threads=threads)
+    traj = shot.trajectory
+    h = shot.step
+    est = automatic_window(model, traj, h=h)
+    auto = max(est.window_s, h)
+    if window is None:
+        w = shot.dynamics["window_s"]
+        window = auto if w == "auto" else float(w)
+    if not (window > 0):
+        raise KDInputError(f"window: expected positive seconds, got {window}")
+    times = shot.animation.frame_times
+    kinematic = traj.positions(times)
+    t0 = _time.perf_counter()
+    kd = simulate_kd(system, traj, times, window, h=h)
+    ms = 1e3 * (_time.perf_counter() - t0) / len(times)
+    result = ikd = check = None
+    constraints = shot.constraints()
+    if solve and constraints:
+        s = dict(shot.solver)
+        if update is not None:
+            s["update"] = update
+        if damping is not None:
+            s["damping"] = damping
+        result = solve_ikd(system, traj, constraints, window=window, h=h, update=s["update"], damping=s["damping"],
+                           tolerance_m=s["tolerance_m"], tolerance_mps=s["tolerance_mps"],
+                           max_iterations=int(s["max_iterations"]), max_correction=s["max_correction_m"])
+        ikd = simulate_kd(system, result.trajectory, times, window, h=h)
+        check = independent_check(system, result, window=window, h=h)
+    return ShotRun(shot=shot, system=system, times=times, kinematic=kinematic, kd=kd, ikd=ikd, ikd_result=result,
+                   check_errors=check, window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m,
+                   ms_per_state=ms)
+
+
+def ikd_summary(run: ShotRun) -> dict:
+    """The ``"ikd"`` block of summary.json (errors in metres, or m/s for velocity constraints)."""
+    r = run.ikd_result
+    return {
+        "converged": bool(r.converged),
+        "reason": r.reason,
+        "iterations": int(r.iterations),
+        "wall_s": float(r.wall_s),
+        "update": r.update,
+        "kd_states_simulated": int(r.kd_states),
+        "constraints": [
+            {"label": c.label, "time_s": c.time, "kind": c.kind, "unit": c.unit,
+             "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i])}
+            for i, c in enumerate(r.constraints)
+        ],
+        "independent_check_max_error_m": float(np.max(run.check_errors)),
+        "independent_check_errors": [float(e) for e in run.check_errors],
+    }
+
+
+def strip_times(run: ShotRun, count: int = 6) -> np.ndarray:
+    """Times [s] for filmstrips: every constraint time, filled up with evenly spaced times, at most ``count``."""
+    anim = run.shot.animation
+    cts = sorted({c.time for c in run.ikd_result.constraints}) if run.ikd_result else []
+    fill = np.linspace(anim.start, anim.end, max(count, 2) + 2)[1:-1]
+    t = list(cts)
+    for f in fill:
+        if len(t) >= count:
+            break
+        if all(abs(f - x) > 0.3 for x in t):
+            t.append(float(f))
+    return np.array(sorted(t))
+
+
+def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict | None = None) -> list[Path]:
+    """Filmstrip (kinematic | KD | IKD), convergence plot, point caches of the final trajectory.
+
+    ``convergence_runs`` maps a label to an :class:`IKDResult` to compare in the convergence plot (default: the
+    run's own solve). Returns the written paths.
+    """
+    from ..io.export import export_trajectory
+    from ..viz.figures import filmstrip
+    from ..viz.ikd_report import convergence_plot
+
+    out = Path(out)
+    rig = run.shot.rig
+    t = strip_times(run)
+    # KD is history-free: the strip's times (constraint times need not be frames) are simulated on their own
+    traj = run.shot.trajectory
+    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, h=run.h)}
+    if run.ikd_result is not None:
+        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, h=run.h)
+    paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}")]
+    if run.ikd_result is not None:
+        runs = convergence_runs or {run.ikd_result.update: run.ikd_result}
+        paths.append(convergence_plot(out / "ikd_convergence.png", runs, tolerance_m=run.shot.solver["tolerance_m"]))
+    for kind in exports:
+        paths.append(export_trajectory(out, run.final, run.times, kind=kind, faces=rig.faces,
+                                       fps=run.shot.animation.fps, name=run.shot.name))
+    return paths
+
+
+def _run_command(args) -> dict:
+    from ..io.summary import write_summary
+
+    run = run_shot(args.shot, window=args.window)
+    if args.out is None:
+        args.out = str(Path("kd-out") / Path(args.shot).stem)
+    out = Path(args.out)
+    paths = write_run_outputs(run, out, exports=args.export)
+    summary = run_summary(run, out, paths)
+    write_summary(out, summary)
+    return summary
+
+
+def run_summary(run: ShotRun, out, paths) -> dict:
+    """summary.json of a run: rig, timing, KD window and deviation, IKD, outputs (paths relative to ``out``)."""
+    rig, anim = run.shot.rig, run.shot.animation
+    summary = {
+        "shot": run.shot.name,
+        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes},
+        "fps": anim.fps,
+        "frames": len(run.times),
+        "duration_s": anim.duration,
+        "kd": {
+            "window_s": run.window_s,
+            "window_auto_s": run.window_auto_s,
+            "epsilon_m": run.epsilon_m,
+            "ms_per_state": run.ms_per_state,
+            "max_deviation_from_kinematic_m": float(np.linalg.norm(run.kd - run.kinematic, axis=-1).max()),
+        },
+        "outputs": [str(Path(p).relative_to(out)) for p in paths],
+    }
+    if run.ikd_result is not None:
+        summary["ikd"] = ikd_summary(run)
+    return summary
+
+
+def add_run_parser(subparsers) -> None:
+    """``kdfaces run SHOT.toml [--out DIR] [--window S] [--export usd|usda|pc2 ...] [--json]``."""
+    from ..io.export import add_export_option
+
+    p = subparsers.add_parser("run", help="simulate a shot file: KD of every frame, IKD for its constraints")
+    p.add_argument("shot", help="TOML shot file")
+    p.add_argument("--out", default=None, help="output folder (default kd-out/<shot name>)")
+    p.add_argument("--window", type=float, default=None, help="KD window [s] (overrides the shot's)")
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    add_export_option(p)
+    p.set_defaults(func=_run_command)

@@ -1,0 +1,230 @@
+"""Off-screen pyvista renders with a fixed camera and lighting, so frames compare.
+
+:class:`FaceRenderer` draws one triangle mesh at many vertex positions from a camera fixed by a reference pose:
+plain skin colour, per-vertex scalars through a colour map (heat maps), point markers (constraint targets), a
+corner label, or a binary silhouette mask (for image tests). :func:`filmstrip` lays renders out in a labelled grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import KDInputError
+from ..io.atomic import atomic_path
+
+__all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "check_positions"]
+
+#: The skin colour of plain renders.
+SKIN = "#d9a58a"
+_BACKGROUND = (255, 255, 255)
+
+
+def check_positions(positions, num_vertices: int, what: str) -> np.ndarray:
+    """``positions`` as float64 of shape (..., N, 3) [m] with N = ``num_vertices``, finite; else one KDInputError."""
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim < 2 or x.shape[-2:] != (num_vertices, 3):
+        raise KDInputError(f"{what}: expected vertex positions of shape (..., {num_vertices}, 3), got {x.shape}")
+    if not np.isfinite(x).all():
+        raise KDInputError(f"{what}: vertex positions contain NaN or inf")
+    return x
+
+
+@dataclass(frozen=True)
+class Markers:
+    """Points drawn as screen-space spheres: ``points`` (M, 3) [m], a colour, and a diameter in pixels."""
+
+    points: np.ndarray
+    color: str = "#1a9850"
+    size_px: float = 9.0
+
+
+class FaceRenderer:
+    """Renders one triangle mesh at many vertex positions from a fixed camera.
+
+    Args:
+        faces: triangles (F, 3) int.
+        reference: vertex positions (N, 3) [m] that fix the camera framing (every frame uses the same view).
+        size: image (width, height) in pixels.
+        color: skin colour of plain renders.
+        view: direction from the face centre towards the camera (the face looks +z, y is up).
+    """
+
+    def __init__(self, faces: np.ndarray, reference: np.ndarray, *, size=(360, 420), color=SKIN,
+                 view=(0.35, 0.15, 1.0)):
+        import pyvista as pv
+
+        pv.OFF_SCREEN = True
+        self._pv = pv
+        f = np.asarray(faces, dtype=np.int64)
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise KDInputError(f"faces: expected triangles of shape (F, 3), got {f.shape}")
+        ref = np.asarray(reference, dtype=np.float64)
+        self.num_vertices = len(ref)
+        ref = check_positions(ref, self.num_vertices, "reference")
+        if f.min() < 0 or f.max() >= self.num_vertices:
+            raise KDInputError(f"faces: vertex indices must lie in [0, {self.num_vertices})")
+        self.size = tuple(int(s) for s in size)
+        self.color = color
+        self.mesh = pv.PolyData(ref.copy(), np.hstack([np.full((len(f), 1), 3), f]).ravel())
+        self.mesh["value"] = np.zeros(self.num_vertices)
+        self.plotter = pv.Plotter(off_screen=True, window_size=self.size, lighting="three lights")
+        self.plotter.set_background("white")
+        self._style = None
+        self.actor = None
+        self._label = None
+        self._set_style(("plain",))
+        lo, hi = ref.min(axis=0), ref.max(axis=0)
+        center = 0.5 * (lo + hi)
+        radius = 0.5 * np.linalg.norm(hi - lo)
+        d = np.asarray(view, dtype=np.float64)
+        d /= np.linalg.norm(d)
+        cam = self.plotter.camera
+        cam.focal_point = center
+        cam.position = center + 3.2 * radius * d
+        cam.up = (0.0, 1.0, 0.0)
+        cam.view_angle = 30.0
+        self.plotter.reset_camera_clipping_range()
+
+    def _set_style(self, style: tuple) -> None:
+        """Re-create the mesh actor only when the style (plain / scalars with cmap and clim / mask) changes."""
+        if style == self._style:
+            return
+        if self.actor is not None:
+            self.plotter.remove_actor(self.actor)
+        kind = style[0]
+        if kind == "scalars":
+            _, cmap, clim = style
+            self.actor = self.plotter.add_mesh(self.mesh, scalars="value", clim=clim, cmap=cmap, n_colors=256,
+                                               smooth_shading=True, specular=0.0, show_scalar_bar=False)
+        elif kind == "mask":
+            self.actor = self.plotter.add_mesh(self.mesh, color="black", lighting=False, scalars=None)
+        else:
+            self.actor = self.plotter.add_mesh(self.mesh, color=self.color, smooth_shading=True, specular=0.2,
+                                               scalars=None)
+        self._style = style
+
+    def render(self, points: np.ndarray, scalars: np.ndarray | None = None, clim=None, cmap: str = "inferno", *,
+               markers: list[Markers] = (), label: str | None = None) -> np.ndarray:
+        """An RGB image (H, W, 3) uint8 of the mesh at ``points`` (N, 3) [m].
+
+        ``scalars`` (N,) colour the vertices through ``cmap`` over ``clim`` (lo, hi) in the scalars' unit (default
+        their range); ``markers`` are drawn on top; ``label`` is written in the top-left corner.
+        """
+        x = check_positions(points, self.num_vertices, "points")
+        self.mesh.points = x
+        if scalars is not None:
+            s = np.asarray(scalars, dtype=np.float64).reshape(-1)
+            if s.shape != (self.num_vertices,) or not np.isfinite(s).all():
+                raise KDInputError(f"scalars: expected {self.num_vertices} finite values, got shape {s.shape}")
+            if clim is None:
+                clim = (float(s.min()), float(max(s.max(), s.min() + 1e-12)))
+            self.mesh["value"] = s
+            self._set_style(("scalars", cmap, (float(clim[0]), float(clim[1]))))
+        else:
+            self._set_style(("plain",))
+        extra = [self.plotter.add_points(np.asarray(m.points, dtype=np.float64).reshape(-1, 3), color=m.color,
+                                         point_size=m.size_px, render_points_as_spheres=True)
+                 for m in markers]
+        if label:
+            if self._label is None:  # one text actor, re-used: adding one per frame costs more than the render
+                self._label = self.plotter.add_text(label, position=(6, self.size[1] - 22), font_size=10,
+                                                    color="black")
+            self._label.SetInput(label)
+        if self._label is not None:
+            self._label.SetVisibility(bool(label))
+        self.plotter.render()
+        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3].copy()
+        for a in extra:
+            self.plotter.remove_actor(a)
+        return img
+
+    def mask(self, points: np.ndarray) -> np.ndarray:
+        """The silhouette of the mesh at ``points`` (N, 3) [m]: a boolean image (H, W), True where the mesh is."""
+        self.mesh.points = check_positions(points, self.num_vertices, "points")
+        self._set_style(("mask",))
+        if self._label is not None:
+            self._label.SetVisibility(False)
+        self.plotter.render()
+        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
+        return (np.abs(img.astype(np.int16) - np.array(_BACKGROUND)).max(axis=-1) > 127)
+
+    def close(self) -> None:
+        self.plotter.close()
+
+    def __enter__(self) -> FaceRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def image_grid(images: dict[str, list[np.ndarray]], column_titles: list[str], *, title: str | None = None,
+               colorbar: dict | None = None, captions: dict[str, list[str]] | None = None, cell_inches=(1.9, 2.25)):
+    """A matplotlib figure: one row per label of ``images`` (each a list of RGB images), one column per title.
+
+    ``colorbar``: ``{"cmap": name, "clim": (lo, hi), "label": text}`` adds a vertical colour bar on the right.
+    ``captions``: row label → one text per image, written under it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    nr, nc = len(images), len(column_titles)
+    width = max(cell_inches[0] * nc + (0.9 if colorbar else 0.0), 3.6 if title else 0.0)
+    fig, axes = plt.subplots(nr, nc, figsize=(width, cell_inches[1] * nr + (0.4 if title else 0)), squeeze=False)
+    for r, (label, imgs) in enumerate(images.items()):
+        for c, img in enumerate(imgs):
+            ax = axes[r, c]
+            ax.imshow(img)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            for s in ax.spines.values():
+                s.set_visible(False)
+            if r == 0:
+                ax.set_title(column_titles[c], fontsize=9)
+            if c == 0:
+                ax.set_ylabel(label, fontsize=10)
+            if captions and label in captions:
+                ax.set_xlabel(captions[label][c], fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    if colorbar:
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.colors import Normalize
+
+        fig.subplots_adjust(right=1.0 - 0.9 / width)
+        cax = fig.add_axes((1.0 - 0.75 / width, 0.15, 0.18 / width, 0.7))
+        sm = ScalarMappable(norm=Normalize(*colorbar["clim"]), cmap=colorbar["cmap"])
+        fig.colorbar(sm, cax=cax).set_label(colorbar.get("label", ""), fontsize=9)
+    return fig
+
+
+def save_figure(fig, path) -> Path:
+    """Write a matplotlib figure to ``path`` (PNG) atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
+def filmstrip(path, faces, rows: dict[str, np.ndarray], times, *, reference=None, title: str | None = None) -> Path:
+    """A grid PNG: one row per label in ``rows`` (each (F, N, 3) [m]), one column per time in ``times`` [s]."""
+    first = np.asarray(next(iter(rows.values())))
+    ref = first[0] if reference is None else reference
+    times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    for label, frames in rows.items():
+        if len(frames) != len(times):
+            raise KDInputError(f"filmstrip row {label!r}: {len(frames)} frames for {len(times)} times")
+    with FaceRenderer(faces, ref) as renderer:
+        images = {label: [renderer.render(x) for x in frames] for label, frames in rows.items()}
+    fig = image_grid(images, [f"t = {t:.2f} s" for t in times], title=title)
+    return save_figure(fig, path)

@@ -1,0 +1,78 @@
+"""IKD reports: convergence curves (paper Fig. 8 analog) and the error-after-k-iterations map over a grid of
+target offsets (Fig. 9 analog)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..ikd.constraints import Constraint
+from ..ikd.solver import IKDResult, solve_ikd
+from .figures import save_figure
+
+__all__ = ["convergence_plot", "offset_grid", "offset_grid_plot"]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def convergence_plot(path, runs: dict[str, IKDResult], *, tolerance_m: float | None = None) -> Path:
+    """Log error vs iteration, one panel per constraint, one line per solver run (e.g. paper, scaled, secant)."""
+    plt = _pyplot()
+    first = next(iter(runs.values()))
+    n = len(first.constraints)
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.0), squeeze=False)
+    for j, c in enumerate(first.constraints):
+        ax = axes[0, j]
+        for label, r in runs.items():
+            err = np.maximum(r.history[:, j], 1e-12)
+            ax.semilogy(np.arange(len(err)), err * (1e3 if c.unit == "m" else 1.0), marker="o", ms=3, label=label)
+        if tolerance_m is not None and c.unit == "m":
+            ax.axhline(tolerance_m * 1e3, color="k", ls=":", lw=1)
+        ax.set_title(f"{c.label} ({c.kind}, t = {c.time:g} s)", fontsize=8)
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("max error [mm]" if c.unit == "m" else "max error [m/s]")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window: float, h: float,
+                iterations: int = 6, update: str = "paper", damping: float = 1.0, axes=(0, 1)):
+    """Error after ``iterations`` sweeps for the constraint's target moved by every (a, b) in ``offsets_m`` (M,)
+    [m] along the two world ``axes``. Returns errors (M, M) [m] (row: first axis offset) and convergence flags."""
+    offs = np.asarray(offsets_m, dtype=np.float64)
+    err = np.zeros((len(offs), len(offs)))
+    ok = np.zeros_like(err, dtype=bool)
+    for i, a in enumerate(offs):
+        for j, b in enumerate(offs):
+            shift = np.zeros(3)
+            shift[axes[0]], shift[axes[1]] = a, b
+            c = Constraint(constraint.kind, constraint.time, constraint.basis, constraint.indices,
+                           constraint.target + shift, constraint.weights, constraint.damping, constraint.label)
+            r = solve_ikd(system, trajectory, [c], window=window, h=h, update=update, damping=damping,
+                          tolerance_m=0.0, max_iterations=iterations)
+            err[i, j] = r.errors_after[0]
+            ok[i, j] = r.reason != "diverged"
+    return err, ok
+
+
+def offset_grid_plot(path, offsets_m, errors_m, *, title: str, axes_names=("x", "y")) -> Path:
+    plt = _pyplot()
+    offs_cm = np.asarray(offsets_m) * 100
+    fig, ax = plt.subplots(figsize=(4.2, 3.6))
+    im = ax.imshow(np.log10(np.maximum(errors_m * 100, 1e-9)).T, origin="lower", cmap="viridis",
+                   extent=[offs_cm[0], offs_cm[-1], offs_cm[0], offs_cm[-1]], aspect="equal")
+    fig.colorbar(im, ax=ax, label="log10 error after iterations [cm]")
+    ax.set_xlabel(f"target offset {axes_names[0]} [cm]")
+    ax.set_ylabel(f"target offset {axes_names[1]} [cm]")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)

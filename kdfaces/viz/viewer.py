@@ -1,0 +1,411 @@
+"""The scrubbing viewer (paper §6.6, Fig. 11): a timeline that shows the KD state of any frame on demand.
+
+Every displayed frame is computed history-free: one ``simulate_kd`` call over the window δ ending at that frame's
+time, so scrubbing back and forth, or jumping, costs the same per frame (the time in ms is shown on screen).
+Sliders change the settle time, damping ratio, window δ and the IKD correction width σ; the display toggles
+between the kinematic pose, the KD state and the IKD state; a key solves IKD for the shot's constraints.
+
+Keys: ``space`` play/stop, ``m`` cycle kinematic → KD → IKD, ``i`` solve IKD, ``w`` kinematic wireframe overlay,
+``Left``/``Right`` step one frame. Every slider and key calls a plain method of :class:`ShotViewer`, so tests
+drive the viewer programmatically; ``kdfaces view SHOT --screenshot FILE --frame F`` renders one frame off-screen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import KDInputError
+from ..io.atomic import atomic_path
+from ..kd import simulate_kd, window_steps
+from .figures import SKIN
+from .markers import constraint_markers
+
+__all__ = ["MODES", "ShotViewer", "view_shot", "add_view_parser", "with_width"]
+
+MODES = ("kinematic", "kd", "ikd")
+_MODE_NAMES = {"kinematic": "kinematic", "kd": "KD", "ikd": "IKD"}
+
+
+def with_width(constraint, sigma: float):
+    """``constraint`` with its correction bell widened or narrowed to width ``sigma`` [s].
+
+    An asymmetric bell keeps its ease-out / ease-in ratio.
+    """
+    b = constraint.basis
+    if hasattr(b, "sigma"):
+        nb = dataclasses.replace(b, sigma=float(sigma))
+    else:
+        nb = dataclasses.replace(b, sigma_in=float(sigma), sigma_out=float(sigma) * b.sigma_out / b.sigma_in)
+    return dataclasses.replace(constraint, basis=nb)
+
+
+def _initial_width(constraints) -> float:
+    for c in constraints:
+        b = c.basis
+        return float(getattr(b, "sigma", getattr(b, "sigma_in", 0.3)))
+    return 0.3
+
+
+class ShotViewer:
+    """A pyvista window over one shot: timeline, play/stop, parameter sliders, display toggle, IKD solve.
+
+    Args:
+        shot: a :class:`~kdfaces.shots.shotfile.Shot`.
+        off_screen: render without a window (screenshots, tests).
+        size: window (width, height) in pixels.
+        window: KD window δ [s]; default the shot's ``window_s`` (or the automatic window when "auto").
+        widgets: draw the sliders and the play button (they also appear in screenshots).
+
+    Attributes:
+        frame: the displayed frame index into ``times``.
+        times: frame times [s], shape (F,).
+        mode: one of :data:`MODES`.
+        points: the displayed vertex positions [m], shape (N, 3).
+        last_ms: wall time of the last KD state computation [ms] (0 in kinematic mode).
+        ikd: the last :class:`~kdfaces.ikd.solver.IKDResult`, or None; ``ikd_stale`` is True when a parameter
+            changed after it was solved (it is still shown, against the new dynamics, until solved again).
+    """
+
+    def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window: float | None = None,
+                 widgets: bool = True, device: str = "cpu"):
+        self.shot = shot
+        self.trajectory = shot.trajectory
+        self.times = np.asarray(shot.animation.frame_times, dtype=np.float64)
+        self.h = shot.step
+        self.device = device
+        base = shot.settle_time()
+        self._settle_map = np.broadcast_to(np.asarray(base, dtype=np.float64), (shot.rig.num_vertices,))
+        self.settle_time = float(self._settle_map.max())
+        self.damping_ratio = float(shot.dynamics["damping_ratio"])
+        self._constraints = shot.constraints()
+        self.sigma = _initial_width(self._constraints)
+        self._sigma_set = False  # until the slider moves, every constraint keeps the shot's own width
+        self._rebuild_system()
+        if window is None:
+            w = shot.dynamics["window_s"]
+            if w == "auto":
+                from ..window import automatic_window
+
+                w = automatic_window(self.system.model, self.trajectory, h=self.h).window_s
+            window = max(float(w), self.h)
+        self.window = float(window)
+        self.mode = "kd"
+        self.frame = 0
+        self.playing = False
+        self.last_ms = 0.0
+        self.ikd = None
+        self.ikd_stale = False
+        self.ikd_message = "IKD: not solved (press i)" if self._constraints else "IKD: the shot has no constraints"
+        self._build_scene(off_screen, size, widgets)
+        self.update()
+
+    # --- dynamics ----------------------------------------------------------------------------------------------
+    def _rebuild_system(self) -> None:
+        from ..dynamics import FaceSystem
+
+        scale = self.settle_time / float(self._settle_map.max())
+        model = self.shot.model(settle_time=self._settle_map * scale, damping_ratio=self.damping_ratio)
+        self.system = FaceSystem(model, device=self.device)
+
+    def constraints(self) -> list:
+        """The shot's constraints; once the width slider moved, all with the viewer's correction width σ."""
+        if not self._sigma_set:
+            return list(self._constraints)
+        return [with_width(c, self.sigma) for c in self._constraints]
+
+    def state(self, frame: int | None = None, mode: str | None = None) -> np.ndarray:
+        """Vertex positions (N, 3) [m] of ``frame`` in ``mode`` (default the displayed ones); sets ``last_ms``."""
+        k = self.frame if frame is None else frame
+        mode = self.mode if mode is None else mode
+        t = self.times[k]
+        if mode == "kinematic":
+            self.last_ms = 0.0
+            return self.trajectory.positions([t])[0]
+        traj = self.ikd.trajectory if (mode == "ikd" and self.ikd is not None) else self.trajectory
+        t0 = time.perf_counter()
+        x = simulate_kd(self.system, traj, [t], self.window, h=self.h)[0]
+        self.last_ms = 1e3 * (time.perf_counter() - t0)
+        return x
+
+    # --- callbacks (sliders, keys, buttons) --------------------------------------------------------------------
+    def set_frame(self, value) -> None:
+        """Timeline slider: show frame ``round(value)`` (clamped to the shot)."""
+        self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
+        self.update()
+
+    def step_frame(self, delta: int = 1) -> None:
+        """Move ``delta`` frames, wrapping around the shot."""
+        self.set_frame((self.frame + int(delta)) % len(self.times))
+
+    def set_settle_time(self, value) -> None:
+        """Settle-time slider [s]: the loosest vertex's settle time; a per-vertex map is scaled with it."""
+        v = float(value)
+        if not v > 0:
+            raise KDInputError(f"settle time: expected positive seconds, got {value}")
+        self.settle_time = v
+        self._parameters_changed(rebuild=True)
+
+    def set_damping_ratio(self, value) -> None:
+        """Damping-ratio slider (ζ, dimensionless)."""
+        v = float(value)
+        if not v > 0:
+            raise KDInputError(f"damping ratio: expected a positive number, got {value}")
+        self.damping_ratio = v
+        self._parameters_changed(rebuild=True)
+
+    def set_window(self, value) -> None:
+        """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
+        window_steps(float(value), self.h)
+        self.window = float(value)
+        self._parameters_changed(rebuild=False)
+
+    def set_sigma(self, value) -> None:
+        """Correction-width slider: σ [s] of every constraint's bell (takes effect at the next IKD solve).
+
+        Until it is first set, each constraint keeps the width of its shot file (the slider starts at the first's).
+        """
+        v = float(value)
+        if not v > 0:
+            raise KDInputError(f"correction width: expected positive seconds, got {value}")
+        self.sigma = v
+        self._sigma_set = True
+        self._parameters_changed(rebuild=False)
+
+    def _parameters_changed(self, *, rebuild: bool) -> None:
+        if rebuild:
+            self._rebuild_system()
+        if self.ikd is not None:
+            self.ikd_stale = True
+        self.update()
+
+    def set_mode(self, mode: str) -> None:
+        """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
+        if mode not in MODES:
+            raise KDInputError(f"mode: expected one of {MODES}, got {mode!r}")
+        self.mode = mode
+        self.update()
+
+    def cycle_mode(self) -> None:
+        """Key ``m``: kinematic → KD → IKD → kinematic."""
+        self.set_mode(MODES[(MODES.index(self.mode) + 1) % len(MODES)])
+
+    def solve_ikd(self):
+        """Key ``i``: solve IKD for the shot's constraints with the current parameters; show the IKD state."""
+        from ..ikd.solver import solve_ikd
+
+        if not self._constraints:
+            self.ikd_message = "IKD: the shot has no constraints"
+            self.update()
+            return None
+        s = self.shot.solver
+        self.ikd = solve_ikd(self.system, self.trajectory, self.constraints(), window=self.window, h=self.h,
+                             update=s["update"], damping=float(s["damping"]), tolerance_m=float(s["tolerance_m"]),
+                             tolerance_mps=float(s["tolerance_mps"]), max_iterations=int(s["max_iterations"]),
+                             max_correction=float(s["max_correction_m"]))
+        self.ikd_stale = False
+        r = self.ikd
+        self.ikd_message = (f"IKD: {r.reason}, {r.iterations} sweeps, {r.wall_s:.2f} s, "
+                            f"{_error_text(r)}")
+        self.mode = "ikd"
+        self.update()
+        return r
+
+    def set_playing(self, playing) -> None:
+        """Play button / ``space``: start or stop playback (the timer calls :meth:`tick`)."""
+        self.playing = bool(playing)
+        self.update_text()
+
+    def toggle_play(self) -> None:
+        self.set_playing(not self.playing)
+
+    def tick(self, *_) -> None:
+        """Timer: advance one frame while playing."""
+        if self.playing:
+            self.step_frame(1)
+
+    def show_kinematic(self, visible) -> None:
+        """Key ``w``: the kinematic pose as a wireframe over the displayed state."""
+        self._wire_actor.SetVisibility(bool(visible))
+        self.update()
+
+    # --- scene -------------------------------------------------------------------------------------------------
+    def _build_scene(self, off_screen: bool, size, widgets: bool) -> None:
+        import pyvista as pv
+
+        rig = self.shot.rig
+        f = np.asarray(rig.faces, dtype=np.int64)
+        cells = np.hstack([np.full((len(f), 1), 3), f]).ravel()
+        self.mesh = pv.PolyData(rig.neutral.astype(np.float64).copy(), cells)
+        self.wire = pv.PolyData(rig.neutral.astype(np.float64).copy(), cells)
+        self.plotter = pl = pv.Plotter(off_screen=off_screen, window_size=tuple(size), lighting="three lights")
+        pl.set_background("white")
+        pl.add_mesh(self.mesh, color=SKIN, smooth_shading=True, specular=0.2)
+        self._wire_actor = pl.add_mesh(self.wire, style="wireframe", color="#3b6fb6", opacity=0.25, line_width=1)
+        self._wire_actor.SetVisibility(False)
+        self._marker_actors = []
+        ref = rig.neutral
+        lo, hi = ref.min(axis=0), ref.max(axis=0)
+        center, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+        d = np.array([0.35, 0.15, 1.0]) / np.linalg.norm([0.35, 0.15, 1.0])
+        pl.camera.focal_point = center
+        pl.camera.position = center + 3.0 * radius * d
+        pl.camera.up = (0.0, 1.0, 0.0)
+        pl.camera.view_angle = 30.0
+        pl.reset_camera_clipping_range()
+        self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
+        self._sliders = {}
+        if widgets:
+            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
+            n = len(self.times)
+            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, n - 1), value=0, title="frame",
+                                                          pointa=(0.25, 0.08), pointb=(0.95, 0.08),
+                                                          interaction_event="always", fmt="%.0f", style="modern",
+                                                          title_height=0.02)
+            specs = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time, "settle time [s]"),
+                     ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),
+                     ("window", self.set_window, (self.h, max(2.0, self.window)), self.window, "window [s]"),
+                     ("sigma", self.set_sigma, (0.05, 1.0), self.sigma, "correction width [s]")]
+            for i, (key, cb, rng, val, title) in enumerate(specs):
+                y = 0.86 - 0.13 * i
+                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
+                                                          pointa=(0.76, y), pointb=(0.98, y), **style)
+            self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
+                                                              size=36, color_on="#1a9850", color_off="grey")
+        if not off_screen:
+            pl.add_key_event("space", self.toggle_play)
+            pl.add_key_event("m", self.cycle_mode)
+            pl.add_key_event("i", self.solve_ikd)
+            pl.add_key_event("w", lambda: self.show_kinematic(not self._wire_actor.GetVisibility()))
+            pl.add_key_event("Right", lambda: self.step_frame(1))
+            pl.add_key_event("Left", lambda: self.step_frame(-1))
+
+    def _constraint_markers(self, x: np.ndarray) -> list:
+        """Markers of the constraints at the displayed frame (within half a step of its time)."""
+        t = self.times[self.frame]
+        out = []
+        for c in self.constraints():
+            if abs(c.time - t) <= 0.5 * self.h + 1e-9:
+                xp = self.state(max(self.frame - 1, 0)) if c.kind == "velocity" else None
+                out += constraint_markers(c, x, xp, h=self.h)
+        return out
+
+    def update(self) -> None:
+        """Recompute the displayed state of the current frame and mode, and redraw."""
+        x = self.state()
+        ms = self.last_ms
+        self.points = x
+        self.mesh.points = x
+        if self._wire_actor.GetVisibility():
+            self.wire.points = self.trajectory.positions([self.times[self.frame]])[0]
+        for a in self._marker_actors:
+            self.plotter.remove_actor(a)
+        self._marker_actors = [self.plotter.add_points(m.points, color=m.color, point_size=m.size_px,
+                                                       render_points_as_spheres=True, reset_camera=False)
+                               for m in self._constraint_markers(x)]
+        self.last_ms = ms
+        slider = self._sliders.get("frame")
+        if slider is not None:
+            slider.GetRepresentation().SetValue(self.frame)
+        self.update_text()
+
+    def status(self) -> str:
+        """The on-screen text: frame, time, mode, ms per KD state, window, IKD status."""
+        n = len(self.times)
+        shown = _MODE_NAMES[self.mode]
+        if self.mode == "ikd" and self.ikd is None:
+            shown = "IKD (not solved: showing KD)"
+        lines = [f"{self.shot.name}   frame {self.frame}/{n - 1}   t = {self.times[self.frame]:.2f} s   {shown}"
+                 + ("   [playing]" if self.playing else ""),
+                 f"KD state: {self.last_ms:.1f} ms   window {self.window:.2f} s "
+                 f"({window_steps(self.window, self.h)} steps of {1e3 * self.h:.0f} ms)",
+                 self.ikd_message + ("  [stale: press i]" if self.ikd_stale else "")]
+        return "\n".join(lines)
+
+    def update_text(self) -> None:
+        self._text.SetText(2, self.status())
+        self.plotter.render()
+
+    # --- output ------------------------------------------------------------------------------------------------
+    def screenshot(self, path) -> Path:
+        """Write the current view to ``path`` (PNG), atomically."""
+        from PIL import Image
+
+        self.plotter.render()
+        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
+        with atomic_path(path, ".png") as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+        return Path(path)
+
+    def show(self) -> None:
+        """Open the interactive window (blocks until it is closed); playback runs at the shot's frame rate."""
+        fps = float(getattr(self.shot.animation, "fps", 25.0))
+        self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
+        self.plotter.show(title=f"kdfaces view: {self.shot.name}")
+
+    def close(self) -> None:
+        self.plotter.close()
+
+
+def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window=None) -> dict:
+    """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
+
+    In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
+    """
+    from ..shots.shotfile import load_shot
+
+    shot = load_shot(path)
+    n = len(shot.animation.frame_times)
+    if not 0 <= int(frame) < n:
+        raise KDInputError(f"--frame: {frame} is outside the shot's frames 0..{n - 1}")
+    if mode not in MODES:
+        raise KDInputError(f"--mode: expected one of {MODES}, got {mode!r}")
+    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window=window)
+    try:
+        if mode == "ikd":
+            viewer.solve_ikd()
+        viewer.set_mode(mode)
+        viewer.set_frame(int(frame))
+        summary = {"shot": shot.name, "frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
+                   "mode": viewer.mode, "window_s": viewer.window, "kd_state_ms": viewer.last_ms}
+        if screenshot is not None:
+            summary["screenshot"] = str(viewer.screenshot(screenshot))
+        else:
+            viewer.show()
+    finally:
+        viewer.close()
+    return summary
+
+
+def _view_command(args) -> dict:
+    if args.screenshot is None and args.frame != 0:
+        raise KDInputError("--frame: only meaningful with --screenshot FILE")
+    return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
+                     size=(args.width, args.height), window=args.window)
+
+
+def add_view_parser(subparsers) -> None:
+    """Add ``kdfaces view SHOT.toml [--screenshot FILE --frame F] [--mode kinematic|kd|ikd] [--window S]``."""
+    ap = subparsers.add_parser("view", help="scrub a shot's KD states interactively (or screenshot one frame)")
+    ap.add_argument("shot", help="the shot file (TOML)")
+    ap.add_argument("--screenshot", metavar="FILE", help="render one frame off-screen to this PNG and exit")
+    ap.add_argument("--frame", type=int, default=0, help="frame index for --screenshot (default 0)")
+    ap.add_argument("--mode", default="kd", choices=MODES, help="what to display (default kd)")
+    ap.add_argument("--window", type=float, help="KD window δ [s] (default: the shot's)")
+    ap.add_argument("--width", type=int, default=960, help="window width [px]")
+    ap.add_argument("--height", type=int, default=720, help="window height [px]")
+    ap.add_argument("--json", action="store_true", help="print the summary to stdout")
+    ap.set_defaults(func=_view_command)
+
+
+def _error_text(result) -> str:
+    """Largest remaining error per unit: positions in mm, velocities in mm/s (never mixed)."""
+    parts = []
+    for unit, scale, label in (("m", 1e3, "mm"), ("m/s", 1e3, "mm/s")):
+        errs = [e for c, e in zip(result.constraints, result.errors_after) if c.unit == unit]
+        if errs:
+            parts.append(f"max error {scale * max(errs):.4f} {label}")
+    return ", ".join(parts)

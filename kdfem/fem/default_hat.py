@@ -1,0 +1,66 @@
+"""The default hat on the default head: geometry, tets (cached on disk), material, attachment."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+
+import numpy as np
+
+from kdfaces.io.atomic import atomic_path
+
+from ..geometry.hat import HatParams, christmas_hat
+from ..geometry.tetmesh import TetMesh, embed_surface, tetrahedralize
+from .attachment import attached_nodes
+from .materials import Material
+from .model import FEMModel
+from .system import HatSystem
+
+__all__ = ["DEFAULT_MATERIAL", "DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_EDGE_LENGTH_FAC", "DEFAULT_EPSILON",
+           "hat_tetmesh", "default_hat_system"]
+
+#: A floppy knitted hat: E = 3 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
+DEFAULT_MATERIAL = Material(youngs=3.0e3)
+#: Rayleigh damping C = αM + βK: α [1/s] (relative to the head), β [s]; the tip swing decays within ~1 s.
+DEFAULT_ALPHA, DEFAULT_BETA = 1.0, 0.01
+#: pytetwild target edge length / bbox diagonal and envelope: a coarse (~1k tet) simulation mesh.
+DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = 0.09, 0.004
+
+
+def hat_tetmesh(*, edge_length_fac: float = 0.06, epsilon: float = 1e-3, coarsen: bool = False,
+                params: HatParams | None = None, cache_dir=None):
+    """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``)).
+
+    Defaults: pytetwild's tight envelope (a fine mesh, ~5k tets). :func:`default_hat_system` asks for a coarse
+    simulation mesh instead (loose envelope ``epsilon``, ``coarsen``) and embeds the fine surface in it.
+    """
+    p = params or HatParams()
+    surf = christmas_hat(p)
+    path = None
+    if cache_dir is not None:
+        key = hashlib.sha1(repr((p, round(edge_length_fac, 6), round(epsilon, 6), coarsen)).encode()).hexdigest()
+        path = Path(cache_dir) / f"hat_tets_{key[:16]}.npz"
+        if path.exists():
+            d = np.load(path)
+            return surf, TetMesh(d["nodes"], d["tets"]), 0.0
+    t0 = time.perf_counter()
+    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, epsilon=epsilon,
+                          coarsen=coarsen, where="hat")
+    dt = time.perf_counter() - t0
+    if path is not None:
+        with atomic_path(path, ".npz") as tmp:
+            np.savez(tmp, nodes=mesh.nodes, tets=mesh.tets)
+    return surf, mesh, dt
+
+
+def default_hat_system(rig, *, edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, material: Material | None = None,
+                       alpha: float = DEFAULT_ALPHA, beta: float = DEFAULT_BETA, attach_distance: float = 0.02,
+                       cache_dir=None, device: str = "cpu", epsilon: float = DEFAULT_EPSILON, coarsen: bool = True,
+                       params: HatParams | None = None, threads: int = 1):
+    """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head."""
+    surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=epsilon, coarsen=coarsen, params=params,
+                                 cache_dir=cache_dir)
+    att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance)
+    model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, alpha=alpha, beta=beta, device=device)
+    return HatSystem(model, embedding=embed_surface(mesh, surf.vertices), threads=threads), surf, dt

@@ -65,7 +65,7 @@ def _scrub(system, traj, frames):
     from kdfaces import simulate_kd
 
     frames[0] = 60 + (frames[0] - 59) % 60
-    simulate_kd(system, traj, [traj.frame_times[frames[0]]], WINDOW_S, h=H)
+    simulate_kd(system, traj, [traj.frame_times[frames[0]]], WINDOW_S, step_s=H)
 
 
 def _steps(system, traj, t0):
@@ -77,7 +77,7 @@ def _steps(system, traj, t0):
 def _batch(system, traj):
     from kdfaces import simulate_kd
 
-    simulate_kd(system, traj, traj.frame_times, WINDOW_S, h=H)
+    simulate_kd(system, traj, traj.frame_times, WINDOW_S, step_s=H)
 
 
 def bench_kd_state(repeats: int) -> list[dict]:

@@ -35,7 +35,7 @@ def _kd_rows(system, traj, size, batches, repeats, threads):
         runs = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            simulate_kd(system, traj, times, WINDOW_S, h=H)
+            simulate_kd(system, traj, times, WINDOW_S, step_s=H)
             runs.append((time.perf_counter() - t0) / B)
         med = float(np.median(runs))
         out.append({"name": f"hat KD state (batch {B}, {threads} thread{'s' * (threads > 1)}, δ=0.568 s, h=0.01 s)",
@@ -59,7 +59,7 @@ def bench_hat(repeats: int = 3) -> list[dict]:
 def _bench_size(rig, traj, fac, eps, coarsen, label, repeats):
     out = []
     big = label == "~20k"
-    system, _, tet_s = default_hat_system(rig, edge_length_fac=fac, epsilon=eps, coarsen=coarsen, cache_dir=CACHE)
+    system, _, tet_s = default_hat_system(rig, edge_length_fac=fac, epsilon_m=eps, coarsen=coarsen, cache_dir=CACHE)
     size = f"{label}: {system.model.mesh.num_tets} tets"
     if tet_s > 0:  # 0 when the mesh came from the cache
         out.append({"name": "hat tetrahedralise (pytetwild, 1 run)", "size": size, "median_s": tet_s,

@@ -22,8 +22,9 @@ def bench_ikd_demo(repeats: int):
         walls, last = [], None
         for _ in range(repeats):
             t0 = time.perf_counter()
-            last = solve_ikd(run.system, shot.trajectory, constraints, window=run.window_s, h=run.h, update=update,
-                             damping=s, tolerance_m=solver["tolerance_m"], tolerance_mps=solver["tolerance_mps"],
+            last = solve_ikd(run.system, shot.trajectory, constraints, window_s=run.window_s, step_s=run.step_s,
+                             update=update, step_scale=s, tolerance_m=solver["tolerance_m"],
+                             tolerance_mps=solver["tolerance_mps"],
                              max_iterations=30)
             walls.append(time.perf_counter() - t0)
         size = (f"{len(constraints)} constraints, {last.iterations} sweeps, {last.kd_states} KD states, "

@@ -20,7 +20,7 @@ def bench_modal(repeats: int = 1) -> list[dict]:
     out = []
     for fac, eps, coarsen, label in SIZES:
         with tempfile.TemporaryDirectory() as tmp:
-            run = window_report(None, out=tmp, edge_length_fac=fac, mesh_epsilon=eps, coarsen=coarsen, cache_dir=CACHE,
+            run = window_report(None, out=tmp, edge_length_fac=fac, envelope_fac=eps, coarsen=coarsen, cache_dir=CACHE,
                                 nonlinear=False, sweep=False, figures=False, progress=False)
         tets = run.result["tets"]
         size = f"{label}: {tets} tets"

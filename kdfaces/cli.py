@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import KDInputError, SimulationBlowUpError
+from .errors import KDError
 
 __all__ = ["main"]
 
@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         summary = args.func(args)
-    except (KDInputError, SimulationBlowUpError) as e:
+    except KDError as e:
         print(f"kdfaces: error: {e}", file=sys.stderr)
         return 2
     if getattr(args, "json", False):

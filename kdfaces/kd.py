@@ -4,17 +4,28 @@ x_KD(t) is the result of simulating the system from the kinematic state (x_K(t�
 fixed step h while PD forces track x_K. Every requested time is one member of a batch; each step advances the
 whole batch at once (one kernel launch per term per step), so a shot's KD states cost ``ceil(δ/h)`` launches.
 
-A *system* is anything with three methods (faces and the FEM hat are two systems behind this one protocol; the
-IKD solver never knows which it drives):
+A *system* is anything with these methods (faces and the FEM hat are two systems behind this one protocol; the
+IKD solver, the windows and the reports never know which they drive):
 
 - ``initial_state(trajectory, times) -> state``: the batch state at the window starts ``times`` (B,) [s],
   built from the kinematic trajectory there (position and velocity);
-- ``step(state, trajectory, times, h) -> None``: advance every member from ``times[b]`` to ``times[b] + h`` in
-  place, tracking the trajectory;
-- ``observe(state) -> ndarray``: the quantity constraints and reports are measured on, shape (B, ...).
+- ``step(state, trajectory, times, step_s) -> None``: advance every member from ``times[b]`` to
+  ``times[b] + step_s`` in place, tracking the trajectory;
+- ``observe(state) -> ndarray``: the quantity constraints and reports are measured on, shape (B, P, 3) [m];
+- ``observe_kinematic(trajectory, times) -> ndarray``: the same quantity on the kinematic trajectory itself
+  (B, P, 3) [m] (for a face its vertices; for the hat, the rest hat carried rigidly by the head).
 
-A system may also offer ``prepare(trajectory, start_times, steps, h) -> None``; the simulate functions call it
-first with the window starts and the step count, so it can sample the trajectory on the whole step grid once.
+Optional:
+
+- ``prepare(trajectory, start_times, steps, step_s) -> None``: called first with the window starts and the step
+  count, so the system can sample the trajectory on the whole step grid once;
+- ``correction_jacobian(trajectory, time_s, x, indices) -> J``: when the trajectory's state (what IKD corrects,
+  ``trajectory.state_shape``) is not the observed points, J = ∂x[indices]/∂state, shape (G, 3, *state_shape);
+- ``automatic_window(trajectory, *, step_s, epsilon_m) -> WindowEstimate``: the system's own window (§5.3).
+
+The trajectory is read only through ``evaluate(times, order)`` (and static data such as a rig or a skeleton), so a
+corrected trajectory x_K + f is simulated exactly like the original. Its ``version`` changes whenever its content
+does; systems key their caches by it.
 
 The window is rounded up to a whole number of steps, n = ceil(δ/h), so the KD state at t is exactly the state a
 full simulation started at t − n·h reaches at t (:func:`simulate_full` started at the shot start agrees with a
@@ -28,26 +39,33 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from .defaults import default_step
+from .deprecation import renamed_kwargs
 from .errors import KDInputError
 
-__all__ = ["KDSystem", "window_steps", "simulate_kd", "simulate_full"]
+__all__ = ["KDSystem", "window_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
 
 
 class KDSystem(Protocol):
+    """The KD protocol (see the module docstring)."""
+
     def initial_state(self, trajectory, times: np.ndarray) -> Any: ...
 
-    def step(self, state, trajectory, times: np.ndarray, h: float) -> None: ...
+    def step(self, state, trajectory, times: np.ndarray, step_s: float) -> None: ...
 
     def observe(self, state) -> np.ndarray: ...
 
+    def observe_kinematic(self, trajectory, times: np.ndarray) -> np.ndarray: ...
 
-def window_steps(window: float, h: float) -> int:
-    """Number of steps n = ceil(δ/h) (with a 1e-9 relative guard against round-off)."""
-    if not (np.isfinite(window) and window > 0):
-        raise KDInputError(f"window: expected a positive number of seconds, got {window}")
-    if not (np.isfinite(h) and h > 0):
-        raise KDInputError(f"step h: expected a positive number of seconds, got {h}")
-    return max(1, math.ceil(window / h - 1e-9))
+
+def window_steps(window_s: float, step_s: float) -> int:
+    """Number of steps n = ceil(δ/h) for window δ = ``window_s`` [s] and step h = ``step_s`` [s] (with a 1e-9
+    relative guard against round-off)."""
+    if isinstance(window_s, bool) or not (np.isfinite(window_s) and window_s > 0):
+        raise KDInputError(f"window_s: expected a positive number of seconds, got {window_s}")
+    if isinstance(step_s, bool) or not (np.isfinite(step_s) and step_s > 0):
+        raise KDInputError(f"step_s: expected a positive number of seconds, got {step_s}")
+    return max(1, math.ceil(window_s / step_s - 1e-9))
 
 
 def _check_times(trajectory, times: np.ndarray) -> None:
@@ -60,23 +78,31 @@ def _check_times(trajectory, times: np.ndarray) -> None:
         raise KDInputError(f"times: {times[bad][0]:.6g} s is outside the shot [{start:.6g}, {end:.6g}] s")
 
 
-def _prepare(system, trajectory, start_times: np.ndarray, steps: int, h: float) -> None:
+def _prepare(system, trajectory, start_times: np.ndarray, steps: int, step_s: float) -> None:
     prepare = getattr(system, "prepare", None)
     if prepare is not None:
-        prepare(trajectory, start_times, steps, h)
+        prepare(trajectory, start_times, steps, step_s)
 
 
-def simulate_kd(system: KDSystem, trajectory, times, window: float, *, h: float = 1.0 / 25.0) -> np.ndarray:
-    """KD states at ``times`` (T,) [s] with window δ = ``window`` [s] and step ``h`` [s] → ``observe`` of the batch.
-
-    A single time is the scrub path; many times are one batch. Times must lie inside the shot; windows may reach
-    before its start (the trajectory holds its first pose there).
-    """
+def _times(times) -> np.ndarray:
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     if t.ndim != 1 or len(t) == 0 or not np.isfinite(t).all():
         raise KDInputError("times: expected a non-empty 1-D array of finite seconds")
+    return t
+
+
+@renamed_kwargs(window="window_s", h="step_s")
+def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s: float | None = None) -> np.ndarray:
+    """KD states at ``times`` (T,) [s] with window δ = ``window_s`` [s] → ``system.observe`` of the batch, (T, P, 3).
+
+    ``step_s`` [s] defaults to the trajectory's frame interval. A single time is the scrub path; many times are one
+    batch. Times must lie inside the shot; windows may reach before its start (the trajectory holds its first pose
+    there).
+    """
+    t = _times(times)
     _check_times(trajectory, t)
-    n = window_steps(window, h)
+    h = default_step(trajectory, step_s)
+    n = window_steps(window_s, h)
     t0 = t - n * h
     _prepare(system, trajectory, t0, n, h)
     state = system.initial_state(trajectory, t0)
@@ -85,26 +111,59 @@ def simulate_kd(system: KDSystem, trajectory, times, window: float, *, h: float 
     return system.observe(state)
 
 
-def simulate_full(system: KDSystem, trajectory, times, *, h: float = 1.0 / 25.0, start: float | None = None
+@renamed_kwargs(h="step_s", start="start_s")
+def simulate_full(system: KDSystem, trajectory, times, *, step_s: float | None = None, start_s: float | None = None
                   ) -> np.ndarray:
-    """The ordinary simulation from the shot start (ground truth), observed at ``times`` (T,) [s].
+    """The ordinary simulation from the shot start (ground truth), observed at ``times`` (T,) [s] → (T, P, 3).
 
-    Each output time must be a whole number of steps after ``start`` (default the trajectory's start).
+    ``step_s`` [s] defaults to the trajectory's frame interval. The simulation steps on the grid
+    ``start_s`` + k·h (default the trajectory's start); a time between grid points is reached by a final partial
+    step from the grid point before it (the integrator is the same, only that last step is shorter).
     """
-    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    t = _times(times)
     _check_times(trajectory, t)
-    s = float(trajectory.start if start is None else start)
-    k_out = np.round((t - s) / h).astype(np.int64)
-    if (k_out < 0).any() or not np.allclose(s + k_out * h, t, rtol=0, atol=1e-9 * max(1.0, abs(t).max())):
-        raise KDInputError(f"times: simulate_full needs times on the step grid start + k·h (h = {h} s)")
-    _prepare(system, trajectory, np.array([s]), int(k_out.max()), h)
+    h = default_step(trajectory, step_s)
+    s = float(trajectory.start if start_s is None else start_s)
+    rel = (t - s) / h
+    k_grid = np.floor(rel + 1e-9).astype(np.int64)
+    if (k_grid < 0).any():
+        raise KDInputError(f"times: {t[k_grid < 0][0]:.6g} s is before the simulation start {s:.6g} s")
+    on_grid = np.abs(s + np.round(rel) * h - t) <= 1e-9 * max(1.0, float(np.abs(t).max()))
+    k_grid = np.where(on_grid, np.round(rel).astype(np.int64), k_grid)
+    _prepare(system, trajectory, np.array([s]), int(k_grid.max()) + int(not on_grid.all()), h)
     state = system.initial_state(trajectory, np.array([s]))
     out = [None] * len(t)
-    order = np.argsort(k_out, kind="stable")
+    order = np.lexsort((t, k_grid))
     k = 0
     for idx in order:
-        while k < k_out[idx]:
+        while k < k_grid[idx]:
             system.step(state, trajectory, np.array([s + k * h]), h)
             k += 1
-        out[idx] = system.observe(state)[0].copy()
+        if on_grid[idx]:
+            out[idx] = system.observe(state)[0].copy()
+        else:  # a partial step from the grid point before t, on a copy so the grid run goes on unchanged
+            out[idx] = _partial_step(system, trajectory, state, s + k * h, t[idx] - (s + k * h))
     return np.stack(out)
+
+
+def _partial_step(system, trajectory, state, t0: float, dt: float) -> np.ndarray:
+    """observe() after one step of ``dt`` < h from ``state`` at ``t0``, leaving ``state`` unchanged."""
+    copy = getattr(system, "copy_state", None)
+    if copy is None:
+        raise KDInputError(f"times: {t0 + dt:.6g} s is off the step grid and this system cannot take a partial "
+                           "step; ask for times on the grid start + k·step_s")
+    trial = copy(state)
+    system.step(trial, trajectory, np.array([t0]), dt)
+    return system.observe(trial)[0].copy()
+
+
+def observe_kinematic(system, trajectory, times) -> np.ndarray:
+    """What ``system.observe`` measures, on the kinematic trajectory at ``times`` (T,) [s] → (T, P, 3) [m].
+
+    Systems without ``observe_kinematic`` observe the trajectory's own positions (a face: its vertices).
+    """
+    t = _times(times)
+    fn = getattr(system, "observe_kinematic", None)
+    if fn is not None:
+        return np.asarray(fn(trajectory, t))
+    return np.asarray(trajectory.evaluate(t, order=0)[0])

@@ -18,12 +18,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import lambertw
 
+from .defaults import EPSILON_FRACTION, default_step
+from .deprecation import renamed_kwargs
 from .errors import KDInputError
 
-__all__ = ["DEFAULT_EPSILON_FRACTION", "damping_regime", "window_1d", "WindowEstimate", "automatic_window"]
+__all__ = ["DEFAULT_EPSILON_FRACTION", "damping_regime", "window_1d", "WindowEstimate", "automatic_window",
+           "grid_times"]
 
 #: ε = this fraction of the face diameter (§5.3 uses 0.1 % of the object diameter per node).
-DEFAULT_EPSILON_FRACTION = 1e-3
+DEFAULT_EPSILON_FRACTION = EPSILON_FRACTION
 _CRITICAL_RTOL = 1e-9
 
 
@@ -37,19 +40,20 @@ def damping_regime(k, c):
     return str(out) if out.ndim == 0 else out
 
 
-def window_1d(initial_speed, k, c, *, epsilon: float):
+@renamed_kwargs(epsilon="epsilon_m")
+def window_1d(initial_speed, k, c, *, epsilon_m: float):
     """δ [s] for a unit-mass oscillator with stiffness ``k`` [1/s²] and damping ``c`` [1/s] started at x = 0 with
-    speed ``initial_speed`` [m/s], settling within ``epsilon`` [m] (see the module docstring for each branch).
+    speed ``initial_speed`` [m/s], settling within ``epsilon_m`` [m] (see the module docstring for each branch).
 
     ``k`` and ``c`` may be arrays of the same shape (one window each); a scalar pair returns a float.
     """
     v0 = float(initial_speed)
     k, c = np.asarray(k, dtype=np.float64), np.asarray(c, dtype=np.float64)
-    eps = float(epsilon)
+    eps = float(epsilon_m)
     if not (np.all(k > 0) and np.all(c > 0) and np.isfinite(k).all() and np.isfinite(c).all()):
         raise KDInputError("window: expected positive finite stiffness and damping per unit mass")
     if not (eps > 0 and np.isfinite(eps)):
-        raise KDInputError(f"epsilon: expected a positive distance in metres, got {eps}")
+        raise KDInputError(f"epsilon_m: expected a positive distance in metres, got {eps}")
     if not (v0 >= 0 and np.isfinite(v0)):
         raise KDInputError(f"initial speed: expected a non-negative finite m/s, got {v0}")
     if v0 == 0:
@@ -89,27 +93,42 @@ class WindowEstimate:
     regime: str
 
 
-def automatic_window(model, trajectory, *, h: float = 1.0 / 25.0, epsilon: float | None = None,
-                     times=None) -> WindowEstimate:
-    """δ from the largest kinematic acceleration and the per-vertex gains of ``model`` (§5.2).
+def grid_times(trajectory, step_s: float) -> np.ndarray:
+    """The step grid start + j·h over the shot [s], shape (J,)."""
+    n = int(np.floor((trajectory.end - trajectory.start) / step_s + 1e-9)) + 1
+    return trajectory.start + np.arange(n) * step_s
 
-    ``model`` has per-unit-mass gains ``kp`` (N,) [1/s²], ``kd`` (N,) [1/s] and ``diameter`` [m] (a
-    :class:`~kdfaces.dynamics.FaceModel`). ẍ_max is the largest ‖ẍ_K‖ over vertices at ``times`` (default the
-    step grid start + j·h over the shot). ε defaults to 0.1 % of the face diameter. Each distinct gain pair gets
-    its own 1-D window; the largest is returned (shape matching is not modelled, it only couples vertices).
+
+@renamed_kwargs(h="step_s", epsilon="epsilon_m")
+def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon_m: float | None = None,
+                     times=None) -> WindowEstimate:
+    """The automatic KD window of ``system`` on ``trajectory``.
+
+    A system with its own ``automatic_window`` method (the FEM hat: the modal window of §5.3) answers itself.
+    Otherwise ``system`` is a face system or model with per-unit-mass gains ``kp`` (N,) [1/s²], ``kd`` (N,) [1/s]
+    and ``diameter`` [m] (a :class:`~kdfaces.dynamics.FaceSystem` or :class:`~kdfaces.dynamics.FaceModel`), and
+    §5.2 applies: ẍ_max is the largest ‖ẍ_K‖ over vertices at ``times`` (default the step grid over the shot),
+    ẋ0 = ẍ_max·h, and each distinct gain pair gets its own 1-D window; the largest is returned (shape matching is
+    not modelled, it only couples vertices). ``step_s`` [s] defaults to the frame interval; ``epsilon_m`` [m] to
+    0.1 % of the diameter.
     """
-    if epsilon is None:
-        epsilon = DEFAULT_EPSILON_FRACTION * model.diameter
-    if times is None:
-        n = int(np.floor((trajectory.end - trajectory.start) / h + 1e-9)) + 1
-        times = trajectory.start + np.arange(n) * h
+    own = getattr(system, "automatic_window", None)
+    if own is not None:
+        return own(trajectory, step_s=step_s, epsilon_m=epsilon_m, times=times)
+    model = getattr(system, "model", system)
+    if not all(hasattr(model, a) for a in ("kp", "kd", "diameter")):
+        raise KDInputError(f"automatic_window: {type(system).__name__} has neither its own automatic_window nor "
+                           "per-vertex gains kp, kd and a diameter")
+    h = default_step(trajectory, step_s)
+    epsilon = DEFAULT_EPSILON_FRACTION * model.diameter if epsilon_m is None else float(epsilon_m)
+    t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64)
     acc_max = 0.0
-    t = np.asarray(times, dtype=np.float64)
     for i in range(0, len(t), 32):
         acc = trajectory.evaluate(t[i:i + 32], order=2)[2]
         acc_max = max(acc_max, float(np.sqrt((acc**2).sum(axis=-1)).max()))
     v0 = acc_max * h
-    windows = window_1d(v0, model.kp, model.kd, epsilon=epsilon)
+    windows = np.atleast_1d(window_1d(v0, model.kp, model.kd, epsilon_m=epsilon))
     j = int(np.argmax(windows))
+    kp, kd = np.broadcast_to(model.kp, windows.shape), np.broadcast_to(model.kd, windows.shape)
     return WindowEstimate(window_s=float(windows[j]), epsilon_m=float(epsilon), acceleration_max=acc_max,
-                          initial_speed=v0, regime=str(damping_regime(model.kp[j], model.kd[j])))
+                          initial_speed=v0, regime=str(damping_regime(kp[j], kd[j])))

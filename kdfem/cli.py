@@ -7,9 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from kdfaces.errors import KDInputError, SimulationBlowUpError
-
-from .fem.default_hat import DEFAULT_EDGE_LENGTH_FAC
+from kdfaces import defaults
+from kdfaces.errors import KDError
 
 __all__ = ["main", "build_parser"]
 
@@ -17,8 +16,8 @@ __all__ = ["main", "build_parser"]
 def _demo(args) -> dict:
     from .demo import run_hat_demo
 
-    return run_hat_demo(args.out, rig=args.rig, window=args.window, h=args.h, edge_length_fac=args.edge_length_fac,
-                        frame_stride=args.frame_stride, threads=args.threads)
+    return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
+                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,10 +26,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="the default head nods and turns wearing a floppy hat: rigid | KD | full")
     demo.add_argument("--out", default="kd-out/hat", help="output folder (default kd-out/hat)")
     demo.add_argument("--rig", default="default", help="rig: 'default' or an .npz rig with a head joint")
-    demo.add_argument("--window", type=float, default=0.568, help="KD window δ [s] (default 0.568)")
-    demo.add_argument("--h", type=float, default=0.01, help="simulation step [s] (default 0.01)")
-    demo.add_argument("--edge-length-fac", type=float, default=DEFAULT_EDGE_LENGTH_FAC,
-                      help=f"pytetwild edge length / bbox diagonal (default {DEFAULT_EDGE_LENGTH_FAC}, ~1k tets)")
+    demo.add_argument("--window", type=float, default=defaults.HAT_WINDOW_S,
+                      help=f"KD window δ [s] (default {defaults.HAT_WINDOW_S})")
+    demo.add_argument("--step", "--h", dest="step", type=float, default=defaults.HAT_STEP_S,
+                      help=f"simulation step [s] (default {defaults.HAT_STEP_S})")
+    demo.add_argument("--edge-length-fac", type=float, default=defaults.HAT_EDGE_LENGTH_FAC,
+                      help=f"pytetwild edge length / bbox diagonal (default {defaults.HAT_EDGE_LENGTH_FAC}, ~1k tets)")
     demo.add_argument("--frame-stride", type=int, default=2,
                       help="evaluate every n-th frame of the shot (default 2; summary fps is the evaluated rate)")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
@@ -44,10 +45,11 @@ def _window(args) -> dict:
     """The ``kdfem window`` handler: runs :func:`~kdfem.modal.window.window_report`; returns the window.json dict."""
     from .modal.window import window_report
 
-    run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max, alpha=args.alpha,
-                        beta=args.beta, edge_length_fac=args.edge_length_fac, scale=args.scale,
-                        attach_distance=args.attach_distance, attach_below=args.attach_below, modes=args.modes,
-                        nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride)
+    run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max,
+                        rayleigh_alpha=args.alpha, rayleigh_beta=args.beta, edge_length_fac=args.edge_length_fac,
+                        scale=args.scale, attach_distance_m=args.attach_distance, attach_below_m=args.attach_below,
+                        modes=args.modes, nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride,
+                        progress=True)
     return run.result
 
 
@@ -82,7 +84,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         summary = args.func(args)
-    except (KDInputError, SimulationBlowUpError) as e:
+    except KDError as e:
         print(f"kdfem: error: {e}", file=sys.stderr)
         return 2
     if args.json:

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError
-
-from .fem.default_hat import DEFAULT_EDGE_LENGTH_FAC
 
 __all__ = ["run_hat_demo", "SWEEP_WINDOWS_S"]
 
@@ -27,13 +27,17 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
     return np.sort(np.array(picked, dtype=np.int64))
 
 
-def run_hat_demo(out, *, rig="default", window: float = 0.568, h: float = 0.01,
-                 edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, frame_stride: int = 2, threads: int = 2) -> dict:
+@renamed_kwargs(window="window_s", h="step_s")
+def run_hat_demo(out, *, rig="default", window_s: float = defaults.HAT_WINDOW_S, step_s: float = defaults.HAT_STEP_S,
+                 edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, frame_stride: int = 2,
+                 threads: int = 2) -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | full simulation.
 
-    Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png and summary.json; returns the summary. ``window`` [s] is
-    the KD window δ, ``h`` [s] the step; every ``frame_stride``-th frame of the demo animation is evaluated.
+    Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png and summary.json; returns the summary. ``window_s`` [s]
+    is the KD window δ, ``step_s`` [s] the step; every ``frame_stride``-th frame of the demo animation is
+    evaluated.
     """
+    window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig
     from kdfaces.io.summary import write_summary
     from kdfaces.kd import simulate_full, simulate_kd
@@ -54,14 +58,14 @@ def run_hat_demo(out, *, rig="default", window: float = 0.568, h: float = 0.01,
                                          threads=threads)
     mesh = system.model.mesh
     times = anim.frame_times[:: frame_stride]  # every frame_stride-th frame: "fps" below is their rate
-    full = simulate_full(system, traj, times, h=h)
-    rigid = system.rigid(traj, times)
+    full = simulate_full(system, traj, times, step_s=h)
+    rigid = system.observe_kinematic(traj, times)
     t0 = time.perf_counter()
-    kd = simulate_kd(system, traj, times, window, h=h)
+    kd = simulate_kd(system, traj, times, window, step_s=h)
     ms_per_state = 1e3 * (time.perf_counter() - t0) / len(times)
     sweep, errors = [], {}
     for w in sorted({*SWEEP_WINDOWS_S, window}):
-        x = kd if abs(w - window) < 1e-12 else simulate_kd(system, traj, times, w, h=h)
+        x = kd if abs(w - window) < 1e-12 else simulate_kd(system, traj, times, w, step_s=h)
         errors[w] = np.linalg.norm(x - full, axis=2).max(axis=1)
         sweep.append({"window_s": w, "max_error_vs_full_m": float(errors[w].max())})
     dev = np.linalg.norm(full - rigid, axis=2).max(axis=1)

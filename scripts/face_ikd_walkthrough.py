@@ -49,19 +49,20 @@ def main(argv=None) -> dict:
 
     # 3. KD: loose cheeks and lips, stiff forehead; the window comes from the gains and the sharpest acceleration
     settle = soft_tissue_settle_map(rig, stiff_s=0.12, loose_s=0.35)
-    model = FaceModel.from_rig(rig, settle_time=settle, damping_ratio=0.3, alpha=0.2)
+    model = FaceModel.from_rig(rig, settle_time_s=settle, damping_ratio=0.3, shape_matching_alpha=0.2)
     system = FaceSystem(model, threads=2)
     h = 1.0 / anim.fps
-    window = max(automatic_window(model, traj, h=h).window_s, h)
+    window = max(automatic_window(model, traj, step_s=h).window_s, h)
     times = anim.frame_times
-    kd = simulate_kd(system, traj, times, window, h=h)
+    kd = simulate_kd(system, traj, times, window, step_s=h)
 
     # 4. IKD: at 60 % of the shot, the face must be exactly the animated pose with the head tilted 8 degrees
     tc = round(0.6 * d * anim.fps) / anim.fps
-    target = kinematic_pose(traj, tc, head_offset=np.radians([0.0, 0.0, 8.0]))
-    result = solve_ikd(system, traj, [pose_constraint(tc, target, GaussianBasis(tc, 0.25))], window=window, h=h,
+    target = kinematic_pose(traj, tc, head_deg=[0.0, 0.0, 8.0])
+    pose = pose_constraint(tc, target, GaussianBasis(tc, 0.25), num_vertices=rig.num_vertices)
+    result = solve_ikd(system, traj, [pose], window_s=window, step_s=h,
                        update="secant")
-    ikd = simulate_kd(system, result.trajectory, times, window, h=h)
+    ikd = simulate_kd(system, result.trajectory, times, window, step_s=h)
 
     # 5. look at it, and hand it to other tools
     pick = np.unique(np.round(np.linspace(0, len(times) - 1, 5)).astype(int).tolist() + [int(round(tc * 25))])

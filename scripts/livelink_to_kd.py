@@ -37,13 +37,13 @@ def main(argv=None) -> dict:
     rig = load_default_rig()
     anim = livelinkface_animation(args.csv, start=args.start, end=args.end, fps=args.fps)
     traj = KinematicTrajectory(rig, anim)
-    model = FaceModel.from_rig(rig, settle_time=soft_tissue_settle_map(rig, stiff_s=0.1, loose_s=0.3),
-                               damping_ratio=0.4, alpha=0.2)
+    model = FaceModel.from_rig(rig, settle_time_s=soft_tissue_settle_map(rig, stiff_s=0.1, loose_s=0.3),
+                               damping_ratio=0.4, shape_matching_alpha=0.2)
     system = FaceSystem(model, threads=2)
     h = 1.0 / anim.fps
-    window = max(automatic_window(model, traj, h=h).window_s, h)
+    window = max(automatic_window(model, traj, step_s=h).window_s, h)
     times = anim.frame_times
-    kd = simulate_kd(system, traj, times, window, h=h)
+    kd = simulate_kd(system, traj, times, window, step_s=h)
     x = traj.positions(times)
     dev = np.linalg.norm(kd - x, axis=-1).max(axis=1)
     pick = np.unique(np.r_[np.round(np.linspace(0, len(times) - 1, 4)).astype(int), int(np.argmax(dev))])

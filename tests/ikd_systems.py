@@ -19,6 +19,15 @@ class PointTrajectory:
         self.curve = curve
         self.start = start
         self.end = curve.span[1] if end is None else end
+        self.version = ("points", id(self))
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.rest)
+
+    @property
+    def state_shape(self):
+        return (len(self.rest), 3)
 
     def evaluate(self, times, order=2):
         vals = self.curve.evaluate(times, order)

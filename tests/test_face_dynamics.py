@@ -26,8 +26,8 @@ class AnalyticTrajectory:
 
 
 def particle(settle, zeta, damping="relative"):
-    model = FaceModel.create(np.zeros((1, 3)), np.zeros((0, 3), np.int64), settle_time=settle, damping_ratio=zeta,
-                             alpha=0.0, mass=1.0, damping=damping)
+    model = FaceModel.create(np.zeros((1, 3)), np.zeros((0, 3), np.int64), settle_time_s=settle, damping_ratio=zeta,
+                             shape_matching_alpha=0.0, mass=1.0, damping_mode=damping)
     return model, FaceSystem(model)
 
 
@@ -73,7 +73,7 @@ def test_particle_matches_driven_damped_oscillator(case):
     for h in (1 / 100, 1 / 200):
         _, system = particle(settle, zeta, damping)
         t = np.arange(1, int(round(2.0 / h)) + 1) * h
-        x = simulate_full(system, traj, t, h=h)[:, 0, 0]
+        x = simulate_full(system, traj, t, step_s=h)[:, 0, 0]
         derivs = oscillator(t, u0, 0.0, omega, zeta, f0, f1)
         exact = derivs[0] + pos(t)[:, 0, 0]
         err = np.abs(x - exact).max()
@@ -89,7 +89,7 @@ def test_absolute_damping_lags_constant_velocity_by_kd_over_kp():
     _, system = particle(settle, zeta, "absolute")
     traj = AnalyticTrajectory(lambda t: (c * t)[:, None, None] * np.array([0, 1.0, 0]),
                               lambda t: np.full((len(t), 1, 3), [0, c, 0]), 1, end=3.0)
-    x = simulate_full(system, traj, [3.0], h=0.04)[0, 0]
+    x = simulate_full(system, traj, [3.0], step_s=0.04)[0, 0]
     lag = 2 * zeta * time_constant(settle) * c
     np.testing.assert_allclose(3.0 * c - x[1], lag, rtol=1e-4)
 
@@ -107,12 +107,12 @@ def grid_mesh(n=6, size=0.1):
 def test_uniform_translation_leaves_kd_on_kinematic(rotation):
     verts, faces = grid_mesh()
     vel = np.array([0.4, -0.2, 0.3])
-    model = FaceModel.create(verts, faces, settle_time=0.1, damping_ratio=0.3, alpha=0.5, rings=1,
+    model = FaceModel.create(verts, faces, settle_time_s=0.1, damping_ratio=0.3, shape_matching_alpha=0.5, rings=1,
                              cluster_centers="all", rotation=rotation)
     traj = AnalyticTrajectory(lambda t: verts[None] + t[:, None, None] * vel,
                               lambda t: np.broadcast_to(vel, (len(t), len(verts), 3)), len(verts), end=2.0)
     times = np.arange(1, 51) * 0.04
-    x = simulate_kd(FaceSystem(model), traj, times, 1.0)
+    x = simulate_kd(FaceSystem(model), traj, times, 1.0, step_s=0.04)
     # the exact solution is x = x_K; float32 rounding of |x| ≤ 1.2 m, a few operations per step, does not grow
     # (the step is contractive): allow 50 ulp
     np.testing.assert_allclose(x, traj.evaluate(times)[0], rtol=0, atol=50 * EPS32 * 1.2)
@@ -138,8 +138,8 @@ def test_steady_rotation_offset_is_centripetal_over_omega_squared():
     rng = np.random.default_rng(1)
     verts = rng.uniform(-0.1, 0.1, size=(40, 3))
     Omega, settle, zeta, h = 2.0, 0.3, 0.3, 0.01
-    model = FaceModel.create(verts, np.zeros((0, 3), np.int64), settle_time=settle, damping_ratio=zeta, alpha=0.0,
-                             mass=1.0)
+    model = FaceModel.create(verts, np.zeros((0, 3), np.int64), settle_time_s=settle, damping_ratio=zeta,
+                             shape_matching_alpha=0.0, mass=1.0)
 
     def rot(t):
         cs, sn = np.cos(Omega * t), np.sin(Omega * t)
@@ -150,7 +150,7 @@ def test_steady_rotation_offset_is_centripetal_over_omega_squared():
                               lambda t: np.einsum("tij,nj->tni", rot(t), Omega * np.cross([0, 1.0, 0], verts)),
                               len(verts), end=4.0)
     t_end = 4.0  # transient decays as e^{−ζωt}, ζω = 3.2/s: e^{−12.6} ≈ 3e-6 of the initial lag
-    x = simulate_full(FaceSystem(model), traj, [t_end], h=h)[0]
+    x = simulate_full(FaceSystem(model), traj, [t_end], step_s=h)[0]
     k, c = model.kp[0], model.kd[0]
     R = rot(np.array([t_end]))[0]
     expect = np.stack([R @ rotating_steady_state(r, Omega, k, c, h) for r in verts])
@@ -207,9 +207,10 @@ def test_stable_at_25hz_for_short_settle_times():
     traj = AnalyticTrajectory(lambda t: verts[None] + 0.02 * np.sin(40 * t)[:, None, None] * noise,
                               lambda t: 0.8 * np.cos(40 * t)[:, None, None] * noise, len(verts), end=4.0)
     for zeta in (0.1, 1.0):
-        model = FaceModel.create(verts, faces, settle_time=0.05, damping_ratio=zeta, alpha=1.0, rings=1,
+        model = FaceModel.create(verts, faces, settle_time_s=0.05, damping_ratio=zeta, shape_matching_alpha=1.0,
+                                 rings=1,
                                  cluster_centers="all")
-        x = simulate_full(FaceSystem(model), traj, np.arange(1, 101) * 0.04, h=0.04)
+        x = simulate_full(FaceSystem(model), traj, np.arange(1, 101) * 0.04, step_s=0.04)
         # a stable step keeps the state near the ±2 cm target motion: bounded by a few target amplitudes
         assert np.isfinite(x).all()
         assert np.abs(x - traj.evaluate(np.arange(1, 101) * 0.04)[0]).max() < 0.1
@@ -233,10 +234,10 @@ def test_blow_up_and_bad_input_raise_one_clear_error():
     broken = AnalyticTrajectory(lambda t: np.where(t[:, None, None] > 0.5, np.nan, verts[None]),
                                 lambda t: np.zeros((len(t), len(verts), 3)), len(verts), end=1.0)
     with pytest.raises(KDInputError, match="not finite at t = 0.52"):
-        simulate_full(system, broken, [1.0], h=0.04)
+        simulate_full(system, broken, [1.0], step_s=0.04)
     with pytest.raises(KDInputError, match="mass"):
         FaceModel.create(verts, faces, mass=0.0)
     with pytest.raises(KDInputError, match="settle_time"):
-        FaceModel.create(verts, faces, settle_time=np.full(len(verts), -0.1))
+        FaceModel.create(verts, faces, settle_time_s=np.full(len(verts), -0.1))
     with pytest.raises(KDInputError, match="vertices"):
         FaceSystem(FaceModel.create(verts[:-1], faces[:0])).initial_state(still, np.zeros(1))

@@ -13,7 +13,7 @@ TET = TetMesh(X, np.array([[0, 1, 2, 3]]))
 
 def model(kind, nu=0.3):
     return FEMModel(TET, Material(youngs=1e5, poisson=nu, density=100.0, model=kind), np.array([0]),
-                    alpha=0.0, beta=0.0)
+                    rayleigh_alpha=0.0, rayleigh_beta=0.0)
 
 
 def rotation(rng):

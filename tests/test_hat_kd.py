@@ -26,7 +26,7 @@ def setup():
     q = tet_quality(mesh)
     assert q["min_tet_volume_m3"] > 0 and q["min_dihedral_deg"] > 1.0
     model = FEMModel(mesh, Material(youngs=3e4), attached_nodes(mesh.nodes, rig.neutral, distance=0.02),
-                     alpha=1.0, beta=0.01)
+                     rayleigh_alpha=1.0, rayleigh_beta=0.01)
     system = HatSystem(model, embedding=embed_surface(mesh, surf.vertices), tol=1e-9)
     return rig, KinematicTrajectory(rig, demo_animation()), system, surf
 
@@ -39,15 +39,15 @@ def test_embedding_reproduces_the_render_surface(setup):
 def test_window_to_shot_start_equals_full_and_error_shrinks_with_window(setup):
     _, traj, system, _ = setup
     times = np.array([0.5, 0.6, 0.7])
-    full = simulate_full(system, traj, times, h=H)
+    full = simulate_full(system, traj, times, step_s=H)
     assert np.isfinite(full).all()
-    rigid = system.rigid(traj, times)
+    rigid = system.observe_kinematic(traj, times)
     assert np.linalg.norm(full - rigid, axis=2).max() > 1e-4  # the head motion really deforms the hat
     # a window reaching back to the shot start (t = 0) is the full simulation: same initial state, same steps;
     # equal up to the Newton tolerance (1e-9 m per update, members of a batch may take extra iterations)
-    kd_all = simulate_kd(system, traj, times, times.max(), h=H)
+    kd_all = simulate_kd(system, traj, times, times.max(), step_s=H)
     np.testing.assert_allclose(kd_all[-1], full[-1], atol=1e-7)
-    errs = [np.linalg.norm(simulate_kd(system, traj, times, w, h=H) - full, axis=2).max() for w in (0.1, 0.3, 0.5)]
+    errs = [np.linalg.norm(simulate_kd(system, traj, times, w, step_s=H) - full, axis=2).max() for w in (0.1, 0.3, 0.5)]
     assert all(np.isfinite(errs))
     assert errs[0] >= errs[1] >= errs[2]
 
@@ -83,8 +83,8 @@ def test_demo_hat_swings_after_a_sharp_head_stop_and_the_swing_decays(demo_hat):
     traj, system = demo_hat
     h = 0.01
     times = 4.6 + h * np.arange(0, 137, 4)  # the demo's nod: 4.7 → 5.0 s down, sharp stop, back up by 5.5 s
-    full = simulate_full(system, traj, times, h=h, start=4.6)
-    dev = np.linalg.norm(full - system.rigid(traj, times), axis=2).max(axis=1)
+    full = simulate_full(system, traj, times, step_s=h, start_s=4.6)
+    dev = np.linalg.norm(full - system.observe_kinematic(traj, times), axis=2).max(axis=1)
     assert dev.max() >= 0.02  # the "visibly swinging tip": ≥ 2 cm from the rigidly carried hat
     assert dev[-1] < 0.5 * dev.max()  # Rayleigh damping: the swing dies down within ~0.5 s of the last stop
 
@@ -93,8 +93,8 @@ def test_batched_kd_equals_per_frame_kd(demo_hat):
     traj, system = demo_hat
     threaded = HatSystem(system.model, embedding=system.embedding, threads=2)
     times = np.array([4.96, 5.04, 5.2])
-    batch = simulate_kd(threaded, traj, times, 0.2, h=0.01)
-    single = np.stack([simulate_kd(system, traj, times[k:k + 1], 0.2, h=0.01)[0] for k in range(len(times))])
+    batch = simulate_kd(threaded, traj, times, 0.2, step_s=0.01)
+    single = np.stack([simulate_kd(system, traj, times[k:k + 1], 0.2, step_s=0.01)[0] for k in range(len(times))])
     # every member iterates to its own convergence (per-member masks, per-member factorizations); the batch's
     # multi-right-hand-side solve changes only round-off, which may shift a member's last iteration across the
     # Newton tolerance (1e-6 m per update): differences stay at that level (measured 2e-7 m over 20 steps)

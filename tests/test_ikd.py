@@ -48,7 +48,7 @@ BASES = [GaussianBasis(1.0, 0.2), PolyBell(1.0, 0.2), AsymmetricBell(1.0, 0.15, 
 
 @pytest.mark.parametrize("basis", BASES, ids=lambda b: type(b).__name__)
 def test_basis_peak_support_and_derivatives(basis):
-    v = basis.evaluate([basis.center], 3)
+    v = basis.evaluate([basis.center_s], 3)
     assert v[0, 0] == pytest.approx(1.0, abs=1e-15) and v[1, 0] == pytest.approx(0.0, abs=1e-12)
     lo, hi = basis.support()
     outside = np.array([lo - 1e-6, lo - 0.3, hi + 1e-6, hi + 0.3])
@@ -56,7 +56,7 @@ def test_basis_peak_support_and_derivatives(basis):
     # continuity at the support edges (truncated Gaussians are shifted so φ → 0 there)
     assert np.abs(basis.evaluate([lo + 1e-9, hi - 1e-9], 0)).max() < 1e-6
     t = np.linspace(lo + 0.01, hi - 0.01, 97)
-    t = t[np.abs(t - basis.center) > 1e-3]  # the asymmetric bell's 2nd derivative jumps at the peak
+    t = t[np.abs(t - basis.center_s) > 1e-3]  # the asymmetric bell's 2nd derivative jumps at the peak
     e = 1e-5
     vp, vm, v0 = basis.evaluate(t + e, 3), basis.evaluate(t - e, 3), basis.evaluate(t, 3)
     for k in range(3):  # central differences, O(e²) truncation
@@ -117,7 +117,7 @@ def test_corrected_trajectory_derivatives_are_exact():
 # ---- solver -----------------------------------------------------------------------------------------------------
 
 def kd_at(sys, traj, t):
-    return simulate_kd(sys, traj, [t], WINDOW, h=H)[0]
+    return simulate_kd(sys, traj, [t], WINDOW, step_s=H)[0]
 
 
 @pytest.mark.parametrize("update", ["paper", "secant"])
@@ -125,20 +125,22 @@ def test_single_pose_constraint_converges(update):
     traj, sys = shot(), system()
     target = traj.positions([1.2])[0]  # hit the kinematic pose exactly despite the lag
     assert np.linalg.norm(kd_at(sys, traj, 1.2) - target, axis=1).max() > 5e-3
-    c = pose_constraint(1.2, target, GaussianBasis(1.2, 0.25))
-    res = solve_ikd(sys, traj, [c], window=WINDOW, h=H, update=update, tolerance_m=1e-6, max_iterations=30)
+    c = pose_constraint(1.2, target, GaussianBasis(1.2, 0.25), num_vertices=traj.num_vertices)
+    res = solve_ikd(sys, traj, [c], window_s=WINDOW, step_s=H, update=update, tolerance_m=1e-6, max_iterations=30)
     assert res.converged and res.errors_after[0] <= 1e-6
     np.testing.assert_allclose(kd_at(sys, res.trajectory, 1.2), target, atol=1e-6)
-    assert independent_check(sys, res, window=WINDOW, h=H)[0] == pytest.approx(res.errors_after[0], abs=1e-12)
+    assert independent_check(sys, res, window_s=WINDOW, step_s=H)[0] == pytest.approx(res.errors_after[0], abs=1e-12)
     assert (np.diff(res.history[:, 0]) < 0).all()  # each sweep improves a single constraint
 
 
 def test_secant_needs_fewer_kd_states_than_the_paper_update():
     traj, sys = shot(), system()
-    cs = [pose_constraint(1.2, traj.positions([1.2])[0] + [0, 0.01, 0], GaussianBasis(1.2, 0.25), label="a"),
-          pose_constraint(2.2, traj.positions([2.2])[0], GaussianBasis(2.2, 0.25), label="b")]
-    paper = solve_ikd(sys, traj, cs, window=WINDOW, h=H, update="paper", tolerance_m=1e-6, max_iterations=40)
-    ours = solve_ikd(sys, traj, cs, window=WINDOW, h=H, update="secant", tolerance_m=1e-6, max_iterations=40)
+    n = traj.num_vertices
+    cs = [pose_constraint(1.2, traj.positions([1.2])[0] + [0, 0.01, 0], GaussianBasis(1.2, 0.25), num_vertices=n,
+                          label="a"),
+          pose_constraint(2.2, traj.positions([2.2])[0], GaussianBasis(2.2, 0.25), num_vertices=n, label="b")]
+    paper = solve_ikd(sys, traj, cs, window_s=WINDOW, step_s=H, update="paper", tolerance_m=1e-6, max_iterations=40)
+    ours = solve_ikd(sys, traj, cs, window_s=WINDOW, step_s=H, update="secant", tolerance_m=1e-6, max_iterations=40)
     assert paper.converged and ours.converged
     assert ours.kd_states < paper.kd_states
 
@@ -146,17 +148,17 @@ def test_secant_needs_fewer_kd_states_than_the_paper_update():
 def test_correction_is_local_in_time():
     traj, sys = shot(), system()
     basis = GaussianBasis(1.5, 0.1)
-    c = pose_constraint(1.5, traj.positions([1.5])[0] + [0.01, 0, 0], basis)
-    res = solve_ikd(sys, traj, [c], window=WINDOW, h=H, update="secant", tolerance_m=1e-6)
+    c = pose_constraint(1.5, traj.positions([1.5])[0] + [0.01, 0, 0], basis, num_vertices=traj.num_vertices)
+    res = solve_ikd(sys, traj, [c], window_s=WINDOW, step_s=H, update="secant", tolerance_m=1e-6)
     lo, hi = basis.support()
     frames = np.arange(0, 76) * H
     far = frames[(frames < lo) | (frames - WINDOW > hi)]  # the window [t − δ, t] misses the bell's support
     near = frames[(frames > lo) & (frames < hi)]
     assert len(far) > 10 and len(near) > 3
-    np.testing.assert_array_equal(simulate_kd(sys, res.trajectory, far, WINDOW, h=H),
-                                  simulate_kd(sys, traj, far, WINDOW, h=H))
-    assert np.abs(simulate_kd(sys, res.trajectory, near, WINDOW, h=H) - simulate_kd(sys, traj, near, WINDOW,
-                                                                                     h=H)).max() > 1e-3
+    np.testing.assert_array_equal(simulate_kd(sys, res.trajectory, far, WINDOW, step_s=H),
+                                  simulate_kd(sys, traj, far, WINDOW, step_s=H))
+    assert np.abs(simulate_kd(sys, res.trajectory, near, WINDOW, step_s=H) - simulate_kd(sys, traj, near, WINDOW,
+                                                                                     step_s=H)).max() > 1e-3
 
 
 def test_temporally_coupled_constraints_need_the_coupled_solve():
@@ -164,9 +166,9 @@ def test_temporally_coupled_constraints_need_the_coupled_solve():
     ta, tb = 1.2, 1.5  # 0.3 s apart with 0.3 s wide bells: each correction reaches into the other's window
     ga = traj.positions([ta])[0] + [0, 0.02, 0]
     gb = traj.positions([tb])[0] + [0, -0.01, 0.01]
-    ca = pose_constraint(ta, ga, GaussianBasis(ta, 0.3), label="a")
-    cb = pose_constraint(tb, gb, GaussianBasis(tb, 0.3), label="b")
-    kw = dict(window=WINDOW, h=H, update="paper", tolerance_m=1e-6, max_iterations=40)
+    ca = pose_constraint(ta, ga, GaussianBasis(ta, 0.3), num_vertices=traj.num_vertices, label="a")
+    cb = pose_constraint(tb, gb, GaussianBasis(tb, 0.3), num_vertices=traj.num_vertices, label="b")
+    kw = dict(window_s=WINDOW, step_s=H, update="paper", tolerance_m=1e-6, max_iterations=40)
     alone_a, alone_b = solve_ikd(sys, traj, [ca], **kw), solve_ikd(sys, traj, [cb], **kw)
 
     class Sum:  # the two independent corrections added together
@@ -196,7 +198,7 @@ def test_velocity_subset_and_end_effector_constraints(update):
         end_effector_constraint(2.0, traj.positions([2.0])[0][[0, 5]].mean(0) + [0, 0.01, 0], [0, 5],
                                 GaussianBasis(2.0, 0.25), num_vertices=N),
     ]
-    res = solve_ikd(sys, traj, cs, window=WINDOW, h=H, update=update, tolerance_m=1e-6, tolerance_mps=1e-5,
+    res = solve_ikd(sys, traj, cs, window_s=WINDOW, step_s=H, update=update, tolerance_m=1e-6, tolerance_mps=1e-5,
                     max_iterations=40)
     assert res.converged, res.history[-1]
     x1 = kd_at(sys, res.trajectory, 1.0)
@@ -211,25 +213,27 @@ def test_velocity_subset_and_end_effector_constraints(update):
 
 def test_out_of_reach_target_reports_instead_of_hanging():
     traj, sys = shot(), system()
-    c = pose_constraint(1.2, traj.positions([1.2])[0] + [0.3, 0, 0], GaussianBasis(1.2, 0.25))
-    res = solve_ikd(sys, traj, [c], window=WINDOW, h=H, max_correction=0.05, max_iterations=50)
+    c = pose_constraint(1.2, traj.positions([1.2])[0] + [0.3, 0, 0], GaussianBasis(1.2, 0.25),
+                        num_vertices=traj.num_vertices)
+    res = solve_ikd(sys, traj, [c], window_s=WINDOW, step_s=H, max_correction_m=0.05, max_iterations=50)
     assert not res.converged and res.reason == "out_of_reach"
     assert res.errors_after[0] > 0.1
-    res = solve_ikd(sys, traj, [c], window=WINDOW, h=H, max_iterations=2, tolerance_m=1e-9)
+    res = solve_ikd(sys, traj, [c], window_s=WINDOW, step_s=H, max_iterations=2, tolerance_m=1e-9)
     assert not res.converged and res.reason == "max_iterations" and res.iterations == 2
 
 
 def test_conflicting_constraints_at_the_same_time():
     traj = shot()
     x = traj.positions([1.2])[0]
-    a = pose_constraint(1.2, x, GaussianBasis(1.2, 0.25), label="a")
+    a = pose_constraint(1.2, x, GaussianBasis(1.2, 0.25), num_vertices=traj.num_vertices, label="a")
     b = subset_constraint(1.2, x[[2]] + 0.01, [2], GaussianBasis(1.2, 0.25), num_vertices=N, label="b")
-    with pytest.raises(KDInputError, match="'a' and 'b' at t = 1.2 s have conflicting targets on 1 shared"):
-        solve_ikd(system(), traj, [a, b], window=WINDOW, h=H)
+    with pytest.raises(KDInputError,
+                       match=r"'a' \(pose at 1.2 s\) and 'b' \(subset at 1.2 s\) have conflicting targets on 1 shared"):
+        solve_ikd(system(), traj, [a, b], window_s=WINDOW, step_s=H)
 
 
 def test_velocity_constraint_needs_a_previous_frame():
     traj = shot()
     c = velocity_constraint(0.0, np.zeros(3), GaussianBasis(0.0, 0.2), num_vertices=N)
     with pytest.raises(KDInputError, match="needs t − h ≥ shot start"):
-        solve_ikd(system(), traj, [c], window=WINDOW, h=H)
+        solve_ikd(system(), traj, [c], window_s=WINDOW, step_s=H)

@@ -45,7 +45,8 @@ def small():
                                  ShapeTrack(("mouthSmileLeft",), ease([0, 0.5, 0.7, 1.6], [0, 0, 1, 0]))),
                          start=0.0, end=2.0, fps=25.0, name="patch")
     traj = KinematicTrajectory(rig, anim)
-    model = FaceModel.from_rig(rig, settle_time=0.3, damping_ratio=0.3, alpha=0.3, rings=1, cluster_centers="all")
+    model = FaceModel.from_rig(rig, settle_time_s=0.3, damping_ratio=0.3, shape_matching_alpha=0.3, rings=1,
+                               cluster_centers="all")
     return rig, traj, model
 
 
@@ -53,13 +54,13 @@ def test_window_back_to_shot_start_is_the_full_simulation(small):
     _, traj, model = small
     system = FaceSystem(model)
     times = traj.frame_times
-    full = simulate_full(system, traj, times, h=H)
+    full = simulate_full(system, traj, times, step_s=H)
     for f in (1, 9, 30, 50):
-        x = simulate_kd(system, traj, [times[f]], times[f] - traj.start, h=H)
+        x = simulate_kd(system, traj, [times[f]], times[f] - traj.start, step_s=H)
         np.testing.assert_array_equal(x[0], full[f])
     # reaching further back only adds steps at the held first pose at rest, where x = x_K is a fixed point up to
     # the rounding of the fitted cluster rotations (R = I to ~1e-7): float32 tolerance
-    x = simulate_kd(system, traj, times[[10, 40]], 3.0, h=H)
+    x = simulate_kd(system, traj, times[[10, 40]], 3.0, step_s=H)
     np.testing.assert_allclose(x, full[[10, 40]], rtol=0, atol=20 * EPS32 * 0.7)
 
 
@@ -70,7 +71,7 @@ def test_window_to_zero_gives_the_kinematic_pose(small):
     system = FaceSystem(model)
     times = traj.frame_times[[8, 12, 20]]
     kin = traj.positions(times)
-    err = [np.abs(simulate_kd(system, traj, times, d, h=d) - kin).max() for d in (4e-2, 4e-3, 4e-4)]
+    err = [np.abs(simulate_kd(system, traj, times, d, step_s=d) - kin).max() for d in (4e-2, 4e-3, 4e-4)]
     assert err[0] > 1e-5  # the dynamics do move it at a full frame step
     assert err[1] < err[0] / 10
     assert err[2] < max(err[1] / 10, 20 * EPS32 * 0.7)
@@ -80,15 +81,16 @@ def test_batched_kd_equals_per_frame_and_reruns_bit_for_bit(small):
     _, traj, model = small
     times = traj.frame_times[::3]
     one = FaceSystem(model)
-    batch = simulate_kd(one, traj, times, 0.4, h=H)
-    per_frame = np.concatenate([simulate_kd(one, traj, [t], 0.4, h=H) for t in times])
+    batch = simulate_kd(one, traj, times, 0.4, step_s=H)
+    per_frame = np.concatenate([simulate_kd(one, traj, [t], 0.4, step_s=H) for t in times])
     np.testing.assert_array_equal(batch, per_frame)
-    np.testing.assert_array_equal(simulate_kd(FaceSystem(model, threads=2), traj, times, 0.4, h=H), batch)
-    np.testing.assert_array_equal(simulate_kd(FaceSystem(model), traj, times, 0.4, h=H), batch)
+    np.testing.assert_array_equal(simulate_kd(FaceSystem(model, threads=2), traj, times, 0.4, step_s=H), batch)
+    np.testing.assert_array_equal(simulate_kd(FaceSystem(model), traj, times, 0.4, step_s=H), batch)
     assert np.isfinite(batch).all()
-    iterative = FaceModel.from_rig(small[0], settle_time=0.3, damping_ratio=0.3, alpha=0.3, rotation="iterative")
-    x = simulate_kd(FaceSystem(iterative), traj, times, 0.4, h=H)
-    np.testing.assert_array_equal(x, simulate_kd(FaceSystem(iterative), traj, times, 0.4, h=H))
+    iterative = FaceModel.from_rig(small[0], settle_time_s=0.3, damping_ratio=0.3, shape_matching_alpha=0.3,
+                                   rotation="iterative")
+    x = simulate_kd(FaceSystem(iterative), traj, times, 0.4, step_s=H)
+    np.testing.assert_array_equal(x, simulate_kd(FaceSystem(iterative), traj, times, 0.4, step_s=H))
 
 
 @pytest.fixture(scope="module")
@@ -104,9 +106,9 @@ def demo_short(default_rig):
 def test_kd_error_falls_with_window_and_meets_epsilon_at_the_automatic_window(demo_short, tmp_path):
     traj, model = demo_short
     system = FaceSystem(model, threads=2)
-    est = automatic_window(model, traj, h=H)
+    est = automatic_window(model, traj, step_s=H)
     windows = [0.08, 0.2, 0.4, est.window_s]
-    report = kd_error_report(system, traj, windows, h=H, epsilon=est.epsilon_m, window_auto=est.window_s)
+    report = kd_error_report(system, traj, windows, step_s=H, epsilon_m=est.epsilon_m, window_auto_s=est.window_s)
     worst = report.errors.max(axis=1)
     assert (np.diff(worst) <= 0).all(), worst
     assert worst[0] > est.epsilon_m  # a short window truncates visible motion: the check can fail
@@ -124,8 +126,8 @@ def test_bad_kd_input_is_one_clear_error(small):
     system = FaceSystem(model)
     for w in (0.0, -0.1, np.nan):
         with pytest.raises(KDInputError, match="window"):
-            simulate_kd(system, traj, [1.0], w, h=H)
+            simulate_kd(system, traj, [1.0], w, step_s=H)
     with pytest.raises(KDInputError, match="outside the shot"):
-        simulate_kd(system, traj, [2.5], 0.4, h=H)
+        simulate_kd(system, traj, [2.5], 0.4, step_s=H)
     with pytest.raises(KDInputError, match="times"):
-        simulate_kd(system, traj, [np.nan], 0.4, h=H)
+        simulate_kd(system, traj, [np.nan], 0.4, step_s=H)

@@ -40,15 +40,15 @@ def closed_form(qdot, m, k, c, eps):
 def test_single_dof_reproduces_the_1d_closed_forms(zeta):
     c = 2 * zeta * np.sqrt(M1 * K1)
     alpha = c / M1  # Rayleigh C = αM
-    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1, alpha=alpha)
+    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1, rayleigh_alpha=alpha)
     assert basis.mass[0] == pytest.approx(M1) and basis.stiffness[0] == pytest.approx(K1)
     assert basis.regimes[0] == {0.05: "underdamped", 1.0: "critical", 3.0: "overdamped"}[zeta]
     h = np.array([0, 0, 0, 1.0, 0, 0])  # q̇ = v per unit linear speed
-    w = modal_window(basis, h, epsilon=EPS, omega_max=4.0, v_max=2.0)
+    w = modal_window(basis, h, epsilon_m=EPS, omega_max=4.0, v_max=2.0)
     assert w.qdot1 == pytest.approx(2.0)
-    assert w.delta_s == pytest.approx(closed_form(2.0, M1, K1, c, EPS), rel=1e-9)
+    assert w.window_s == pytest.approx(closed_form(2.0, M1, K1, c, EPS), rel=1e-9)
     # and the response really stays below ε after δ: sample the exact solution of the oscillator
-    t = w.delta_s + np.linspace(0, 5, 20001)
+    t = w.window_s + np.linspace(0, 5, 20001)
     gamma = -c / (2 * M1)
     if zeta < 1:
         om = np.sqrt(4 * M1 * K1 - c * c) / (2 * M1)
@@ -82,7 +82,7 @@ def test_complete_basis_projection_reconstructs_gamma_phi():
     A = rng.normal(size=(3 * n, 3 * n))
     K = sp.csc_matrix(A @ A.T + 3 * n * np.eye(3 * n))
     M = sp.diags(rng.uniform(0.01, 0.05, 3 * n)).tocsc()
-    basis = modal_basis(K, M, count=3 * n, alpha=0.5, beta=1e-3)
+    basis = modal_basis(K, M, count=3 * n, rayleigh_alpha=0.5, rayleigh_beta=1e-3)
     Gam = gamma_matrix(rng.normal(size=(n, 3)) * 0.1, np.zeros(3))
     phi = rng.normal(size=6)
     qdot = np.array([modal_activation(basis, M, Gam, i) @ phi for i in range(3 * n)])
@@ -108,7 +108,7 @@ def test_bad_systems():
         modal_basis(singular, sp.identity(3, format="csc"))
     basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1)
     with pytest.raises(KDInputError, match="undamped"):
-        modal_window(basis, np.ones(6), epsilon=EPS)
+        modal_window(basis, np.ones(6), epsilon_m=EPS)
 
 
 # Cantilever bar (clamped at x = 0), rectangular section W = 2H so the three lowest bending modes are distinct:
@@ -132,7 +132,8 @@ def _cantilever_modes(cells_through_thickness):
     n = cells_through_thickness  # cubic cells: 20n along, 2n across the width, n through the thickness
     bar = structured_bar(CL, CW, CH, 20 * n, 2 * n, n)
     clamp = np.flatnonzero(bar.nodes[:, 0] < 1e-12)
-    md = FEMModel(bar, Material(youngs=CE, poisson=0.0, density=CRHO, model="corotated"), clamp, alpha=0, beta=0)
+    md = FEMModel(bar, Material(youngs=CE, poisson=0.0, density=CRHO, model="corotated"), clamp, rayleigh_alpha=0,
+                  rayleigh_beta=0)
     b = modal_basis(md.rest_stiffness(), sp.diags(md.free_masses), count=3)
     direction = np.abs(b.vectors.reshape(len(md.free), 3, -1)).sum(axis=0).argmax(axis=0)  # dominant axis per mode
     return b.frequencies_hz, direction

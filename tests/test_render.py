@@ -109,9 +109,9 @@ def test_heatmap_of_rigid_motion_is_uniformly_zero_coloured(default_rig):
 
     rig = default_rig
     traj = Translation(rig.neutral, np.array([0.3, 0.1, -0.2]))
-    system = FaceSystem(FaceModel.from_rig(rig, settle_time=0.3, damping_ratio=0.3))
+    system = FaceSystem(FaceModel.from_rig(rig, settle_time_s=0.3, damping_ratio=0.3))
     t = np.array([0.4])
-    kd = simulate_kd(system, traj, t, 0.4, h=0.04)[0]
+    kd = simulate_kd(system, traj, t, 0.4, step_s=0.04)[0]
     xk = traj.positions(t)[0]
     dev = deviation_mm(kd, xk)
     assert dev.max() < 1e-3  # float32 round-off: 1 µm
@@ -133,8 +133,8 @@ def test_heatmap_of_rigid_motion_is_uniformly_zero_coloured(default_rig):
 def test_ikd_frame_overlaps_its_target_silhouette(run):
     c = run.ikd_result.constraints[0]
     assert c.kind == "pose" and run.ikd_result.converged
-    k = int(np.argmin(np.abs(run.times - c.time)))
-    assert abs(run.times[k] - c.time) < 1e-9
+    k = int(np.argmin(np.abs(run.times - c.time_s)))
+    assert abs(run.times[k] - c.time_s) < 1e-9
     with FaceRenderer(run.shot.rig.faces, run.kinematic[0], size=(200, 240)) as r:
         target, ikd, kd = r.mask(c.target), r.mask(run.ikd[k]), r.mask(run.kd[k])
     assert 0.1 < target.mean() < 0.6

@@ -18,7 +18,7 @@ def test_demo_ikd_meets_every_constraint(demo):
     r = demo.ikd_result
     kinds = [c.kind for c in r.constraints]
     assert {"pose", "subset", "velocity", "end_effector"} <= set(kinds)
-    times = sorted(c.time for c in r.constraints)
+    times = sorted(c.time_s for c in r.constraints)
     assert min(np.diff(times)) < 1.0  # at least two constraints are temporally coupled
     assert r.converged and r.iterations <= 10
     for c, before, after in zip(r.constraints, r.errors_before, r.errors_after):
@@ -31,7 +31,7 @@ def test_demo_ikd_meets_every_constraint(demo):
 def test_ikd_trajectory_kd_matches_the_targets_at_constraint_times(demo):
     r = demo.ikd_result
     pose = next(c for c in r.constraints if c.kind == "pose")
-    x = simulate_kd(demo.system, r.trajectory, [pose.time], demo.window_s, h=demo.h)[0]
+    x = simulate_kd(demo.system, r.trajectory, [pose.time_s], demo.window_s, step_s=demo.step_s)[0]
     assert np.linalg.norm(x - pose.target, axis=1).max() <= 1e-5
     # and the demo has visible secondary motion to correct in the first place
     assert np.linalg.norm(demo.kd - demo.kinematic, axis=-1).max() >= 2e-3
@@ -48,7 +48,7 @@ def test_correction_is_local_on_the_face(demo):
 
 def test_paper_update_reaches_the_same_solution(demo):
     shot = demo.shot
-    paper = solve_ikd(demo.system, shot.trajectory, shot.constraints(), window=demo.window_s, h=demo.h,
+    paper = solve_ikd(demo.system, shot.trajectory, shot.constraints(), window_s=demo.window_s, step_s=demo.step_s,
                       update="paper", tolerance_m=1e-5, tolerance_mps=1e-4, max_iterations=10)
     assert paper.converged
     # both put the constrained vertices within 1e-5 m of the targets, so there they agree to 2e-5 m

@@ -59,7 +59,7 @@ def test_good_shot(tmp_path):
     assert [c.kind for c in cs] == ["pose", "subset", "velocity", "end_effector"]
     traj = shot.trajectory
     # pose target: jaw half open and head rolled by 10° on top of the animation at t = 1 s
-    expect = kinematic_pose(traj, 1.0, weights={"jawOpen": 0.5}, head_offset=np.radians([0, 0, 10]))
+    expect = kinematic_pose(traj, 1.0, weights={"jawOpen": 0.5}, head_deg=[0, 0, 10])
     np.testing.assert_array_equal(cs[0].target, expect)
     assert np.linalg.norm(expect - traj.positions([1.0])[0], axis=1).max() > 0.01
     # subset: the lips of the kinematic pose; velocity: the brows' kinematic velocity (default targets)
@@ -103,7 +103,7 @@ kind = "subset"
 group = "jaw"
 width_s = 0.3
 """
-    with pytest.raises(KDInputError, match="at t = 1.0 s have conflicting targets"):
+    with pytest.raises(KDInputError, match=r"\(pose at 1 s\) and .*\(subset at 1 s\) have conflicting targets"):
         load_shot(write(tmp_path, text))
 
 

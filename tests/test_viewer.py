@@ -35,10 +35,10 @@ def viewer(shot):
 
 def test_scrubbing_is_history_free(viewer, shot):
     viewer.set_mode("kd")
-    assert viewer.window == pytest.approx(0.4)
+    assert viewer.window_s == pytest.approx(0.4)
     viewer.set_frame(20)
     a = viewer.points.copy()
-    expect = simulate_kd(viewer.system, shot.trajectory, [viewer.times[20]], 0.4, h=shot.step)[0]
+    expect = simulate_kd(viewer.system, shot.trajectory, [viewer.times[20]], 0.4, step_s=shot.step_s)[0]
     np.testing.assert_allclose(a, expect, atol=ATOL)
     viewer.set_frame(3)
     viewer.set_frame(19.6)  # a slider value: rounded to the nearest frame
@@ -69,13 +69,13 @@ def test_parameter_sliders(viewer, shot):
     xk = shot.trajectory.positions([viewer.times[12]])[0]
     viewer.set_window(0.2)
     np.testing.assert_allclose(viewer.points, simulate_kd(viewer.system, shot.trajectory, [viewer.times[12]], 0.2,
-                                                          h=shot.step)[0], atol=ATOL)
+                                                          step_s=shot.step_s)[0], atol=ATOL)
     viewer.set_window(0.4)
     np.testing.assert_allclose(viewer.points, base, atol=ATOL)
     # looser tissue lags more behind the kinematic pose at this frame (after the head stops at 0.6 s)
     dev = np.linalg.norm(base - xk, axis=1).max()
     viewer.set_settle_time(0.6)
-    assert viewer.system.model.settle_time.max() == pytest.approx(0.6)
+    assert viewer.system.model.settle_time_s.max() == pytest.approx(0.6)
     assert np.linalg.norm(viewer.points - xk, axis=1).max() > 1.5 * dev
     viewer.set_damping_ratio(1.0)
     assert viewer.system.model.damping_ratio == 1.0
@@ -83,9 +83,9 @@ def test_parameter_sliders(viewer, shot):
     viewer.set_damping_ratio(0.3)
     np.testing.assert_allclose(viewer.points, base, atol=ATOL)
     assert viewer.constraints() == viewer._constraints  # the shot's own widths until the slider moves
-    viewer.set_sigma(0.15)
-    assert [c.basis.sigma for c in viewer.constraints()] == [0.15]
-    viewer.set_sigma(0.2)
+    viewer.set_width(0.15)
+    assert [c.basis.width_s for c in viewer.constraints()] == [0.15]
+    viewer.set_width(0.2)
     with pytest.raises(KDInputError, match="settle time"):
         viewer.set_settle_time(0.0)
     with pytest.raises(KDInputError, match="window"):
@@ -101,11 +101,11 @@ def test_solve_ikd_key_and_markers(viewer, shot):
     assert np.linalg.norm(viewer.points - c.target, axis=1).max() < 1e-4
     assert len(viewer._marker_actors) == 2  # target and reached
     assert "converged" in viewer.status()
-    viewer.set_sigma(0.3)  # a changed correction width makes the solve stale until solved again
+    viewer.set_width(0.3)  # a changed correction width makes the solve stale until solved again
     assert viewer.ikd_stale and "stale" in viewer.status()
     viewer.solve_ikd()
-    assert result.constraints[0].basis.sigma == 0.2 and viewer.ikd.constraints[0].basis.sigma == 0.3
-    viewer.set_sigma(0.2)
+    assert result.constraints[0].basis.width_s == 0.2 and viewer.ikd.constraints[0].basis.width_s == 0.3
+    viewer.set_width(0.2)
     viewer.set_frame(5)
     assert viewer._marker_actors == []
 

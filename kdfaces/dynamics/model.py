@@ -6,7 +6,7 @@ Equation of motion of vertex i (mass m_i, kinematic target x_K,i(t)), in the def
 
 The damper acts on the velocity relative to the kinematic velocity, so a face carried at constant velocity by
 the head stays on its kinematic pose. The paper's PD form damps the absolute velocity, −kd_i ẋ_i
-(``damping="absolute"``); on a moving head it lags the whole face by kd·v/kp.
+(``damping_mode="absolute"``); on a moving head it lags the whole face by kd·v/kp.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import defaults
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError, check_finite
 from .clusters import Clusters, ring_clusters
 from .gains import gains_from_settle_time
@@ -49,13 +51,13 @@ class FaceModel:
 
     Attributes:
         mass: lumped vertex masses [kg], shape (N,), float64, all positive.
-        settle_time: per-vertex settle time t̂ [s], shape (N,), float64.
+        settle_time_s: per-vertex settle time t̂ [s], shape (N,), float64.
         kp: stiffness per unit mass kp/m [1/s²], shape (N,), float64 (On the Beat eq. 4).
         kd: damping per unit mass kd/m [1/s], shape (N,), float64.
         damping_ratio: ζ, dimensionless.
         clusters: shape-matching clusters (:class:`Clusters`).
-        alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
-        damping: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
+        shape_matching_alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
+        damping_mode: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
         diameter: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound).
         rotation: how cluster rotations are fitted: "svd3" (polar part of A_pq from Warp's svd3, float64) or
             "iterative" (Müller et al. 2016, warm-started from the previous step; several times faster).
@@ -63,13 +65,13 @@ class FaceModel:
     """
 
     mass: np.ndarray
-    settle_time: np.ndarray
+    settle_time_s: np.ndarray
     kp: np.ndarray
     kd: np.ndarray
     damping_ratio: float
     clusters: Clusters
-    alpha: float
-    damping: str
+    shape_matching_alpha: float
+    damping_mode: str
     diameter: float
     rotation: str = "svd3"
     rotation_iterations: int = 2
@@ -80,10 +82,11 @@ class FaceModel:
             raise KDInputError(f"mass: expected positive finite kilograms, got min {self.mass.min():.6g}")
         if self.clusters.num_vertices != n:
             raise KDInputError(f"clusters: built for {self.clusters.num_vertices} vertices, model has {n}")
-        if not 0.0 <= self.alpha <= 1.0:
-            raise KDInputError(f"alpha: expected shape-matching stiffness in [0, 1], got {self.alpha}")
-        if self.damping not in DAMPING_CONVENTIONS:
-            raise KDInputError(f"damping: expected one of {DAMPING_CONVENTIONS}, got {self.damping!r}")
+        if not 0.0 <= self.shape_matching_alpha <= 1.0:
+            raise KDInputError(f"shape_matching_alpha: expected shape-matching stiffness in [0, 1], got "
+                               f"{self.shape_matching_alpha}")
+        if self.damping_mode not in DAMPING_CONVENTIONS:
+            raise KDInputError(f"damping_mode: expected one of {DAMPING_CONVENTIONS}, got {self.damping_mode!r}")
         if self.rotation not in ROTATION_METHODS:
             raise KDInputError(f"rotation: expected one of {ROTATION_METHODS}, got {self.rotation!r}")
         if self.rotation_iterations < 1:
@@ -91,26 +94,58 @@ class FaceModel:
 
     @property
     def num_vertices(self) -> int:
+        """N, the number of vertices."""
         return len(self.mass)
 
-    @classmethod
-    def create(cls, vertices, faces, *, settle_time=0.3, damping_ratio: float = 1.0, alpha: float = 0.2,
-               rings: int = 2, cluster_centers="cover", areal_density: float = 10.0, mass=None,
-               damping: str = "relative", rotation: str = "svd3", rotation_iterations: int = 2) -> FaceModel:
-        """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3).
+    @property
+    def alpha(self) -> float:
+        """Deprecated name of :attr:`shape_matching_alpha`."""
+        warn_renamed("FaceModel", "alpha", "shape_matching_alpha")
+        return self.shape_matching_alpha
 
-        ``settle_time`` [s]: scalar or per-vertex (N,) map. ``mass`` [kg]: scalar (uniform) or (N,); default
-        vertex area × ``areal_density`` [kg/m²] (isolated vertices get the mean). ``alpha = 0`` switches shape
-        matching off; clusters are the ``rings``-rings around ``cluster_centers``: "all" vertices, "cover" (a
-        maximal independent set of the ring graph, so every vertex lies in a cluster with far fewer clusters), or
-        an index array.
+    @property
+    def damping(self) -> str:
+        """Deprecated name of :attr:`damping_mode`."""
+        warn_renamed("FaceModel", "damping", "damping_mode")
+        return self.damping_mode
+
+    @property
+    def settle_time(self) -> np.ndarray:
+        """Deprecated name of :attr:`settle_time_s`."""
+        warn_renamed("FaceModel", "settle_time", "settle_time_s")
+        return self.settle_time_s
+
+    @classmethod
+    @renamed_kwargs(settle_time="settle_time_s", alpha="shape_matching_alpha", damping="damping_mode",
+                    areal_density="areal_density_kg_m2")
+    def create(cls, vertices, faces, *, settle_time_s=defaults.SETTLE_TIME_S,
+               damping_ratio: float = defaults.DAMPING_RATIO,
+               shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA, rings: int = defaults.CLUSTER_RINGS,
+               cluster_centers="cover", areal_density_kg_m2: float = defaults.AREAL_DENSITY_KG_M2, mass=None,
+               damping_mode: str = defaults.DAMPING_MODE, rotation: str = "svd3",
+               rotation_iterations: int = 2) -> FaceModel:
+        """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3) int.
+
+        Args:
+            settle_time_s: settle time t̂ [s], scalar or a per-vertex (N,) map (gains from On the Beat eq. 4).
+            damping_ratio: ζ (1 = critically damped).
+            shape_matching_alpha: α ∈ [0, 1]; 0 switches shape matching off.
+            rings, cluster_centers: clusters are the ``rings``-rings around ``cluster_centers``: "all" vertices,
+                "cover" (a maximal independent set of the ring graph, so every vertex lies in a cluster with far
+                fewer clusters), or an index array.
+            areal_density_kg_m2: mass per area [kg/m²] lumped to vertices (isolated vertices get the mean).
+            mass: [kg], scalar (uniform) or (N,); overrides the areal density.
+            damping_mode: "relative" (damps ẋ − ẋ_K) or "absolute" (the paper's −K_d·ẋ).
+            rotation, rotation_iterations: cluster rotation fit, "svd3" or "iterative" (with its iterations).
         """
+        settle_time, alpha, damping = settle_time_s, shape_matching_alpha, damping_mode
+        areal_density = areal_density_kg_m2
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         n = len(v)
         if mass is None:
             if not (np.isfinite(areal_density) and areal_density > 0):
-                raise KDInputError(f"areal_density: expected positive kg/m², got {areal_density}")
+                raise KDInputError(f"areal_density_kg_m2: expected positive kg/m², got {areal_density}")
             a = vertex_areas(v, f) if len(f) else np.zeros(n)
             a = np.where(a > 0, a, a[a > 0].mean() if (a > 0).any() else 1.0)
             m = a * areal_density
@@ -118,18 +153,18 @@ class FaceModel:
             m = _per_vertex(mass, n, "mass")
             if (m <= 0).any():
                 raise KDInputError(f"mass: expected positive kilograms, got {m.min():.6g}")
-        t = _per_vertex(settle_time, n, "settle_time")
+        t = _per_vertex(settle_time, n, "settle_time_s")
         kp, kd = gains_from_settle_time(t, damping_ratio=damping_ratio)
         if alpha > 0 and len(f):
             clusters = ring_clusters(f, n, rings=rings, centers=cluster_centers)
         else:
             clusters = Clusters.empty(n)
         diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
-        return cls(mass=m, settle_time=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
-                   alpha=float(alpha), damping=damping, diameter=diameter, rotation=rotation,
+        return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
+                   shape_matching_alpha=float(alpha), damping_mode=damping, diameter=diameter, rotation=rotation,
                    rotation_iterations=int(rotation_iterations))
 
     @classmethod
     def from_rig(cls, rig, **kwargs) -> FaceModel:
-        """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh."""
+        """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments)."""
         return cls.create(rig.neutral, rig.faces, **kwargs)

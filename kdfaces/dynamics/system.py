@@ -37,6 +37,7 @@ class TrajectoryBake:
 
     def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None):
         self.trajectory, self.h, self.device = trajectory, float(h), device
+        self.version = getattr(trajectory, "version", None)
         self.member_times = member_times
         self.j_lo = int(j_lo)
         self.stride = 1 if member_times is None else len(member_times)
@@ -183,14 +184,16 @@ class FaceSystem:
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
 
     # --- KD protocol -------------------------------------------------------------------------------------------
-    def prepare(self, trajectory, start_times, steps: int, h: float) -> None:
-        """Bake x_K, ẋ_K for windows starting at ``start_times`` (B,) [s] and running ``steps`` steps of ``h``.
+    def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
+        """Bake x_K, ẋ_K for windows starting at ``start_times`` (B,) [s] and running ``steps`` steps of
+        ``step_s`` [s].
 
-        Windows on the shot's frame grid share one bake, reused by later calls with the same trajectory and h.
+        Windows on the shot's frame grid share one bake, reused by later calls with a trajectory of the same
+        content (``trajectory.version``) and step.
         """
         self._check_trajectory(trajectory)
         t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
-        self._pending = (trajectory, t0, self._bake_for(trajectory, t0, float(h)))
+        self._pending = (trajectory, t0, self._bake_for(trajectory, t0, float(step_s)))
         bake, rows = self._pending[2]
         bake.ensure(rows, steps)
 
@@ -200,7 +203,8 @@ class FaceSystem:
             bake = TrajectoryBake(trajectory, h, self.device, member_times=t0)
             return bake, np.arange(len(t0), dtype=np.int32)
         old = self._bake
-        if old is None or old.trajectory is not trajectory or old.h != h:
+        version = getattr(trajectory, "version", None)  # content, not identity: an edited correction is new content
+        if old is None or version is None or old.version != version or old.h != h:
             self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=int(j.min()))
         elif j.min() < old.j_lo:
             self._bake = old = old.prepended(int(j.min()))
@@ -236,8 +240,9 @@ class FaceSystem:
             ))
         return state
 
-    def step(self, state: FaceState, trajectory, times, h: float) -> None:
-        """Advance every member from ``times[b]`` to ``times[b] + h`` [s] (in place)."""
+    def step(self, state: FaceState, trajectory, times, step_s: float) -> None:
+        """Advance every member from ``times[b]`` to ``times[b] + step_s`` [s] (in place)."""
+        h = step_s
         if state.bake is None:
             state.bake, state.rows = self._bake_for(trajectory, state.start_times, float(h))
             for ch in state.chunks:
@@ -259,6 +264,10 @@ class FaceSystem:
         state.steps += 1
         if state.steps % self.check_every == 0:
             self._check(state)
+
+    def observe_kinematic(self, trajectory, times) -> np.ndarray:
+        """Vertex positions of the kinematic trajectory at ``times`` (T,) [s] → (T, N, 3) [m], float64."""
+        return np.asarray(trajectory.evaluate(np.atleast_1d(np.asarray(times, dtype=np.float64)), order=0)[0])
 
     def observe(self, state: FaceState) -> np.ndarray:
         """Vertex positions of every member [m], shape (B, N, 3), float64."""
@@ -300,7 +309,7 @@ class FaceSystem:
         m = self.model
         b = ch.x.shape[0]
         specs = []
-        if m.alpha > 0 and m.clusters.num_clusters:
+        if m.shape_matching_alpha > 0 and m.clusters.num_clusters:
             specs.append((cluster_frames, (b, m.clusters.num_clusters),
                           [ch.x, bake.xk, ch.rows, _OFF0, self._offsets, self._members, self._mass,
                            int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations, ch.quat],
@@ -310,7 +319,7 @@ class FaceSystem:
             voff = self._voff_none
         specs.append((track_step, (b, m.num_vertices),
                       [bake.xk, bake.vk, ch.rows, _OFF0, _OFF1, voff, self._vcl, ch.rot, ch.cen, ch.cen0, self._kp,
-                       self._kd, float(m.alpha), float(bake.h), int(m.damping == "relative")],
+                       self._kd, float(m.shape_matching_alpha), float(bake.h), int(m.damping_mode == "relative")],
                       [ch.x, ch.v]))
         return specs
 

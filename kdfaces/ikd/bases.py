@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import defaults
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError
 
 __all__ = ["Basis", "GaussianBasis", "PolyBell", "AsymmetricBell", "make_basis", "BASIS_KINDS"]
@@ -47,11 +49,18 @@ def _gauss(tau: np.ndarray, sigma: float, cutoff: float, order: int):
 
 @dataclass(frozen=True)
 class Basis:
-    """A bell centred at ``center`` [s]; subclasses define the shape."""
+    """A bell centred at ``center_s`` [s]; subclasses define the shape."""
 
-    center: float
+    center_s: float
+
+    @property
+    def center(self) -> float:
+        """Deprecated name of :attr:`center_s`."""
+        warn_renamed(type(self).__name__, "center", "center_s")
+        return self.center_s
 
     def support(self) -> tuple[float, float]:
+        """The time interval [s] outside which the bell is exactly zero."""
         raise NotImplementedError
 
     def _shape(self, tau: np.ndarray, order: int) -> list[np.ndarray]:
@@ -62,37 +71,50 @@ class Basis:
         if order > 3:
             raise KDInputError("basis: derivatives up to third order only")
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        return np.stack(self._shape(t - self.center, order))
+        return np.stack(self._shape(t - self.center_s, order))
 
 
 @dataclass(frozen=True)
 class GaussianBasis(Basis):
-    sigma: float = 0.25
+    """exp(−τ²/2σ²) with σ = ``width_s`` [s], exactly zero beyond ``cutoff``·σ (shifted and rescaled there)."""
+
+    width_s: float = defaults.WIDTH_S
     cutoff: float = 3.0
 
     def __post_init__(self):
-        _check_width(self.sigma, "gaussian basis width sigma")
+        _check_width(self.width_s, "gaussian bell width_s")
+
+    @property
+    def sigma(self) -> float:
+        """Deprecated name of :attr:`width_s`."""
+        warn_renamed("GaussianBasis", "sigma", "width_s")
+        return self.width_s
 
     def support(self):
-        return self.center - self.cutoff * self.sigma, self.center + self.cutoff * self.sigma
+        """[t_i − cutoff·σ, t_i + cutoff·σ] [s]."""
+        return self.center_s - self.cutoff * self.width_s, self.center_s + self.cutoff * self.width_s
 
     def _shape(self, tau, order):
-        return _gauss(tau, self.sigma, self.cutoff, order)
+        return _gauss(tau, self.width_s, self.cutoff, order)
 
 
 @dataclass(frozen=True)
 class PolyBell(Basis):
-    sigma: float = 0.25
+    """(1 − τ²/w²)³ on |τ| < w = 3σ, σ = ``width_s`` [s]: compact and C²."""
+
+    width_s: float = defaults.WIDTH_S
 
     def __post_init__(self):
-        _check_width(self.sigma, "polynomial bell width sigma")
+        _check_width(self.width_s, "polynomial bell width_s")
 
     @property
     def half_width(self) -> float:
-        return 3.0 * self.sigma
+        """w = 3σ [s]."""
+        return 3.0 * self.width_s
 
     def support(self):
-        return self.center - self.half_width, self.center + self.half_width
+        """[t_i − w, t_i + w] [s]."""
+        return self.center_s - self.half_width, self.center_s + self.half_width
 
     def _shape(self, tau, order):
         w = self.half_width
@@ -106,29 +128,35 @@ class PolyBell(Basis):
 
 @dataclass(frozen=True)
 class AsymmetricBell(Basis):
-    sigma_in: float = 0.25
-    sigma_out: float = 0.5
+    """A Gaussian bell with ease-in width ``width_s`` [s] before t_i and ease-out width ``ease_out_s`` [s] after."""
+
+    width_s: float = defaults.WIDTH_S
+    ease_out_s: float = 2 * defaults.WIDTH_S
     cutoff: float = 3.0
 
     def __post_init__(self):
-        _check_width(self.sigma_in, "asymmetric bell ease-in width")
-        _check_width(self.sigma_out, "asymmetric bell ease-out width")
+        _check_width(self.width_s, "asymmetric bell (ease-in) width_s")
+        _check_width(self.ease_out_s, "asymmetric bell ease_out_s")
 
     def support(self):
-        return self.center - self.cutoff * self.sigma_in, self.center + self.cutoff * self.sigma_out
+        """[t_i − cutoff·σ_in, t_i + cutoff·σ_out] [s]."""
+        return self.center_s - self.cutoff * self.width_s, self.center_s + self.cutoff * self.ease_out_s
 
     def _shape(self, tau, order):
-        before = _gauss(tau, self.sigma_in, self.cutoff, order)
-        after = _gauss(tau, self.sigma_out, self.cutoff, order)
+        before = _gauss(tau, self.width_s, self.cutoff, order)
+        after = _gauss(tau, self.ease_out_s, self.cutoff, order)
         return [np.where(tau < 0.0, b, a) for b, a in zip(before, after)]
 
 
-def make_basis(kind: str, center: float, *, sigma: float, sigma_out: float | None = None) -> Basis:
-    """A basis by name: ``gaussian``, ``poly`` or ``asymmetric`` (``sigma`` = ease-in, ``sigma_out`` = ease-out)."""
+@renamed_kwargs(sigma="width_s", sigma_out="ease_out_s")
+def make_basis(kind: str, center_s: float, *, width_s: float = defaults.WIDTH_S,
+               ease_out_s: float | None = None) -> Basis:
+    """A bell by name centred at ``center_s`` [s]: ``gaussian``, ``poly`` or ``asymmetric`` (``width_s`` [s] =
+    σ, the ease-in width for ``asymmetric``; ``ease_out_s`` [s] its ease-out width, default ``width_s``)."""
     if kind == "gaussian":
-        return GaussianBasis(center, sigma)
+        return GaussianBasis(center_s, width_s)
     if kind == "poly":
-        return PolyBell(center, sigma)
+        return PolyBell(center_s, width_s)
     if kind == "asymmetric":
-        return AsymmetricBell(center, sigma, sigma if sigma_out is None else sigma_out)
+        return AsymmetricBell(center_s, width_s, width_s if ease_out_s is None else ease_out_s)
     raise KDInputError(f"correction curve {kind!r} unknown; expected one of {BASIS_KINDS}")

@@ -9,15 +9,20 @@ A constraint at time t_i measures a quantity q(x_KD(t_i), x_KD(t_i − h)) and w
   mapped to a state displacement through a damped pseudo-inverse of J = ∂p/∂x (eq. 4, 14).
 
 ``residual`` is target − q in the constraint's own space; ``lift`` maps a residual to a state-sized displacement
-e (the correction direction); ``measure`` gives q so the solver can form d = q(x̃_KD) − q(x_KD) (eq. 3, 5).
+e (the correction direction) — directly on vertex states, or through a Jacobian J = ∂x/∂state when the corrected
+state is something else (joint angles, §4.4: ``lift_through``); ``measure`` gives q so the solver can form
+d = q(x̃_KD) − q(x_KD) (eq. 3, 5).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import defaults
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError, check_finite
 from .bases import Basis
 from .corrections import POSITION, VELOCITY
@@ -34,24 +39,53 @@ class Constraint:
 
     Attributes:
         kind: one of :data:`KINDS`.
-        time: t_i [s].
+        time_s: t_i [s].
         basis: the bell of its correction slot (φ_i; velocity constraints use ψ_i = dφ_i/dt).
         indices: constrained vertex indices, shape (G,).
         target: (G, 3) positions [m] (pose/subset), velocities [m/s] (velocity), or (3,) point [m] (end effector).
         weights: (G,) end-effector point weights (sum to one), else None.
-        damping: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹, relative to ‖w‖² (end effector only).
+        pinv_damping: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹, relative to ‖J‖² (end effector, and every
+            constraint lifted through a Jacobian).
         label: a name for reports.
+        index: position in the list it was built in (for unique names in messages; -1 if unknown).
     """
 
     kind: str
-    time: float
+    time_s: float
     basis: Basis
     indices: np.ndarray
     target: np.ndarray
     weights: np.ndarray | None = None
-    damping: float = 1e-3
+    pinv_damping: float = defaults.PINV_DAMPING
     label: str = ""
+    index: int = -1
     meta: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def time(self) -> float:
+        """Deprecated name of :attr:`time_s`."""
+        warn_renamed("Constraint", "time", "time_s")
+        return self.time_s
+
+    @property
+    def name(self) -> str:
+        """A unique name for messages: label, kind, time and index (two constraints at one time differ)."""
+        idx = f" #{self.index}" if self.index >= 0 else ""
+        return f"{self.label!r} ({self.kind} at {self.time_s:g} s{idx})"
+
+    def at_time(self, time_s: float) -> Constraint:
+        """The same constraint moved to ``time_s`` [s], its bell re-centred there."""
+        basis = dataclasses.replace(self.basis, center_s=float(time_s))
+        return dataclasses.replace(self, time_s=float(time_s), basis=basis)
+
+    def check_state(self, num_points: int) -> None:
+        """Raise :class:`KDInputError` unless the constraint fits an observed state of ``num_points`` points."""
+        if len(self.indices) and int(self.indices.max()) >= num_points:
+            raise KDInputError(f"constraint {self.name}: constrains point {int(self.indices.max())}, the system "
+                               f"observes {num_points} points")
+        if self.kind == "pose" and len(self.indices) != num_points:
+            raise KDInputError(f"constraint {self.name}: a pose constraint needs a target for all {num_points} "
+                               f"points, got {len(self.indices)} (use a subset constraint for part of the state)")
 
     @property
     def slot_kind(self) -> str:
@@ -87,10 +121,25 @@ class Constraint:
         if self.kind == "end_effector":
             # p = Σ w_j x_j ⇒ J = [w_1 I … w_G I], JJᵀ = ‖w‖² I, J⁺ r = w_j r / (‖w‖² (1 + μ²)) for each j
             ww = float(self.weights @ self.weights)
-            np.add.at(e, self.indices, self.weights[:, None] * r[None, :] / (ww * (1.0 + self.damping**2)))
+            np.add.at(e, self.indices, self.weights[:, None] * r[None, :] / (ww * (1.0 + self.pinv_damping**2)))
         else:
             np.add.at(e, self.indices, r)
         return e
+
+    def lift_through(self, r: np.ndarray, J: np.ndarray) -> np.ndarray:
+        """A correction of a non-vertex state for residual ``r`` through J = ∂x[indices]/∂state, shape
+        (G, 3, *S): the damped pseudo-inverse Jᵀ(JJᵀ + μ²·tr(JJᵀ)/m·I)⁻¹ r (eq. 5, 14) of the measured quantity's
+        Jacobian (the weighted point for an end effector). Returns shape S."""
+        S = J.shape[2:]
+        Jg = J.reshape(J.shape[0], 3, -1)
+        if self.kind == "end_effector":
+            Jm = np.einsum("g,gkn->kn", self.weights, Jg)
+        else:
+            Jm = Jg.reshape(-1, Jg.shape[-1])
+        rr = np.asarray(r, dtype=np.float64).reshape(-1)
+        A = Jm @ Jm.T
+        mu2 = self.pinv_damping**2 * max(float(np.trace(A)) / len(A), 1e-300)
+        return (Jm.T @ np.linalg.solve(A + mu2 * np.eye(len(A)), rr)).reshape(S)
 
 
 def _indices(group, n: int, where: str) -> np.ndarray:
@@ -109,40 +158,58 @@ def _target(value, shape, where: str) -> np.ndarray:
     return t
 
 
-def pose_constraint(time, target_positions, basis: Basis, *, label="pose") -> Constraint:
-    """All vertices at ``target_positions`` (N, 3) [m] at ``time`` [s]."""
-    tp = np.asarray(target_positions, dtype=np.float64)
-    idx = _indices(None, len(tp), label)
-    return Constraint("pose", float(time), basis, idx, _target(tp, (len(tp), 3), label), label=label)
+def _time(time_s, where: str) -> float:
+    if isinstance(time_s, bool) or not isinstance(time_s, int | float | np.floating | np.integer) \
+            or not np.isfinite(time_s):
+        raise KDInputError(f"{where}: time_s: expected a finite number of seconds, got {time_s!r}")
+    return float(time_s)
 
 
-def subset_constraint(time, target_positions, group, basis: Basis, *, num_vertices: int,
+@renamed_kwargs(time="time_s")
+def pose_constraint(time_s, target_positions, basis: Basis, *, num_vertices: int, label="pose") -> Constraint:
+    """All ``num_vertices`` vertices at ``target_positions`` (N, 3) [m] at ``time_s`` [s].
+
+    ``num_vertices`` is the size of the state (the rig's N): a target of another length is an error, not a pose of
+    the first vertices (use :func:`subset_constraint` for part of the face).
+    """
+    idx = _indices(None, int(num_vertices), label)
+    tp = _target(target_positions, (int(num_vertices), 3), label)
+    return Constraint("pose", _time(time_s, label), basis, idx, tp, label=label)
+
+
+@renamed_kwargs(time="time_s")
+def subset_constraint(time_s, target_positions, group, basis: Basis, *, num_vertices: int,
                       label="subset") -> Constraint:
-    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time`` [s]."""
+    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time_s`` [s]."""
     idx = _indices(group, num_vertices, label)
     tp = np.asarray(target_positions, dtype=np.float64)
     tgt = tp[idx] if tp.shape == (num_vertices, 3) else tp
-    return Constraint("subset", float(time), basis, idx, _target(tgt, (len(idx), 3), label), label=label)
+    return Constraint("subset", _time(time_s, label), basis, idx, _target(tgt, (len(idx), 3), label), label=label)
 
 
-def velocity_constraint(time, target_velocity, basis: Basis, *, group=None, num_vertices: int,
+@renamed_kwargs(time="time_s")
+def velocity_constraint(time_s, target_velocity, basis: Basis, *, group=None, num_vertices: int,
                         label="velocity") -> Constraint:
-    """KD velocity (eq. 12) of ``group`` (default all) equal to ``target_velocity`` [m/s] — (G, 3) or (3,)."""
+    """KD velocity (eq. 12) of ``group`` (default all) equal to ``target_velocity`` [m/s] — (G, 3) or (3,) — at
+    ``time_s`` [s]."""
     idx = _indices(group, num_vertices, label)
     tv = np.asarray(target_velocity, dtype=np.float64)
     tv = np.broadcast_to(tv, (len(idx), 3)).copy() if tv.shape == (3,) else tv
-    return Constraint("velocity", float(time), basis, idx, _target(tv, (len(idx), 3), label), label=label)
+    return Constraint("velocity", _time(time_s, label), basis, idx, _target(tv, (len(idx), 3), label), label=label)
 
 
-def end_effector_constraint(time, target_point, vertices, basis: Basis, *, weights=None, num_vertices: int,
-                            damping: float = 1e-3, label="end_effector") -> Constraint:
-    """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) at ``target_point`` (3,) [m]."""
+@renamed_kwargs(time="time_s", damping="pinv_damping")
+def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, weights=None, num_vertices: int,
+                            pinv_damping: float = defaults.PINV_DAMPING, label="end_effector") -> Constraint:
+    """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) at ``target_point`` (3,) [m] at
+    ``time_s`` [s]; the error maps to a correction through the damped pseudo-inverse (eq. 4–5, μ =
+    ``pinv_damping``)."""
     idx = np.asarray(vertices, dtype=np.int64).reshape(-1)
     idx = _indices(idx, num_vertices, label)
     w = np.full(len(idx), 1.0 / len(idx)) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != idx.shape or abs(w.sum() - 1.0) > 1e-9:
         raise KDInputError(f"{label}: end-effector weights must be one per vertex and sum to one")
-    if not (damping >= 0):
-        raise KDInputError(f"{label}: damping must be non-negative, got {damping}")
-    return Constraint("end_effector", float(time), basis, idx, _target(target_point, (3,), label), weights=w,
-                      damping=float(damping), label=label)
+    if not (pinv_damping >= 0):
+        raise KDInputError(f"{label}: pinv_damping must be non-negative, got {pinv_damping}")
+    return Constraint("end_effector", _time(time_s, label), basis, idx, _target(target_point, (3,), label),
+                      weights=w, pinv_damping=float(pinv_damping), label=label)

@@ -9,6 +9,7 @@ update of the Δ values is a back-substitution (the bases and their centres neve
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,22 +21,24 @@ from .bases import Basis
 __all__ = ["Slot", "Correction", "CorrectedTrajectory"]
 
 POSITION, VELOCITY = "position", "velocity"
+_TOKENS = itertools.count()
 
 
 @dataclass(frozen=True)
 class Slot:
-    """A correction slot: its time [s], kind (``position`` → φ basis, ``velocity`` → ψ basis) and bell."""
+    """A correction slot: its time ``time_s`` [s], kind (``position`` → φ basis, ``velocity`` → ψ basis) and bell."""
 
-    time: float
+    time_s: float
     kind: str
     basis: Basis
 
 
 class Correction:
-    """f(t) over a state of shape ``state_shape`` (e.g. (N, 3) vertex positions [m]).
+    """f(t) over a state of shape ``state_shape`` (e.g. (N, 3) vertex positions [m], or (J, 3) joint angles [rad]).
 
-    ``values[a]`` is the required correction of slot a (Δx [m] or Δẋ [m/s]), shape ``state_shape``; call
-    :meth:`update` after changing them to refresh the coefficients by LU back-substitution.
+    ``values[a]`` is the required correction of slot a (Δx or Δẋ), shape ``state_shape``; call :meth:`update`
+    after changing them to refresh the coefficients by LU back-substitution. ``version`` changes with every
+    update, so anything cached from an earlier f is recognised as stale.
     """
 
     def __init__(self, slots, state_shape):
@@ -49,22 +52,32 @@ class Correction:
             row_order = 0 if sa.kind == POSITION else 1
             for b, sb in enumerate(self.slots):
                 col_order = 0 if sb.kind == POSITION else 1
-                A[a, b] = sb.basis.evaluate([sa.time], row_order + col_order)[row_order + col_order, 0]
+                A[a, b] = sb.basis.evaluate([sa.time_s], row_order + col_order)[row_order + col_order, 0]
         self.matrix = A
         cond = np.linalg.cond(A)
         if not np.isfinite(cond) or cond > 1e10:
-            times = sorted({round(s.time, 9) for s in self.slots})
+            times = sorted({round(s.time_s, 9) for s in self.slots})
             raise KDInputError(f"constraints at times {times} s give a singular interpolation system (condition "
                                f"{cond:.2e}): two constraints of one kind share a time, or bells are far too wide")
         self._lu = scipy.linalg.lu_factor(A)
+        self.factorizations = 1
         self.values = np.zeros((n, *self.state_shape))
         self.coefficients = np.zeros_like(self.values)
+        self._token = next(_TOKENS)
+        self._updates = 0
+
+    @property
+    def version(self) -> tuple[int, int]:
+        """Identifies the current coefficients: (this correction, updates so far)."""
+        return (self._token, self._updates)
 
     def copy(self) -> Correction:
+        """An independent copy (its own values, coefficients and version)."""
         c = object.__new__(Correction)
         c.__dict__.update(self.__dict__)
         c.values = self.values.copy()
         c.coefficients = self.coefficients.copy()
+        c._token = next(_TOKENS)
         return c
 
     def update(self) -> None:
@@ -72,6 +85,7 @@ class Correction:
         n = len(self.slots)
         rhs = self.values.reshape(n, -1)
         self.coefficients = scipy.linalg.lu_solve(self._lu, rhs).reshape(self.values.shape)
+        self._updates += 1
 
     def basis_matrix(self, times, order: int = 2) -> np.ndarray:
         """Φ (order + 1, T, n): d^k/dt^k of slot b's basis function (φ_b or ψ_b) at each time."""
@@ -107,11 +121,31 @@ class CorrectedTrajectory:
         self.base = base
         self.correction = correction
         self.bump = bump
+        self._token = next(_TOKENS)
+        if correction is not None and tuple(correction.state_shape) != tuple(self.state_shape):
+            raise KDInputError(f"correction: its state has shape {correction.state_shape}, the trajectory's is "
+                               f"{tuple(self.state_shape)}")
 
-    def __getattr__(self, name):  # start, end, fps, frame_times, rig, … come from the base trajectory
-        if name in ("base", "correction", "bump"):
+    def __getattr__(self, name):  # start, end, fps, frame_times, rig, skeleton, … (static data of the base)
+        if name in ("base", "correction", "bump", "_token", "joints"):
+            # ``joints`` of a corrected face trajectory would silently drop the correction
             raise AttributeError(name)
         return getattr(self.base, name)
+
+    @property
+    def state_shape(self) -> tuple:
+        """The corrected state's shape: the base trajectory's (a face: (N, 3))."""
+        shape = getattr(self.base, "state_shape", None)
+        if shape is None and self.correction is not None:
+            shape = self.correction.state_shape
+        return tuple(shape)
+
+    @property
+    def version(self):
+        """Changes whenever f changes (the base's version, the correction's, and this object for a trial bump)."""
+        base = getattr(self.base, "version", None)
+        corr = None if self.correction is None else self.correction.version
+        return ("corrected", base, corr, self._token if self.bump is not None else None)
 
     def evaluate(self, times, order: int = 2):
         out = list(self.base.evaluate(times, order))
@@ -124,7 +158,7 @@ class CorrectedTrajectory:
             phi = slot.basis.evaluate(times, order + shift)[shift:]
             if slot.kind != POSITION:
                 # normalise ψ so the bump changes the kinematic *velocity* at t_i by exactly e (ψ'(t_i) = φ''(t_i))
-                phi = phi / slot.basis.evaluate([slot.time], 2)[2, 0]
+                phi = phi / slot.basis.evaluate([slot.time_s], 2)[2, 0]
             for k in range(order + 1):
                 out[k] = out[k] + phi[k].reshape(-1, *([1] * e.ndim)) * e
         return tuple(out)

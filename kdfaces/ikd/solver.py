@@ -13,25 +13,40 @@ the paper's scalar projection); every later sweep updates all constraints at onc
 error does not halve gets a fresh trial. Typical cost: N trials once, then one batched simulation per sweep.
 
 Both stop when every constraint is within tolerance (metres, or m/s for velocity constraints), after
-``max_iterations`` sweeps, on divergence, or when the correction grows past ``max_correction`` (out of reach);
+``max_iterations`` sweeps, on divergence, or when the correction grows past ``max_correction_m`` (out of reach);
 the result says which, with residuals — never a hang.
+
+The corrected state is the trajectory's own (``trajectory.state_shape``): a face's vertex positions, where a
+residual lifts directly (eq. 1, or eq. 4–5 for an end effector), or a skeleton's joint angles, where the system
+provides J = ∂x/∂θ (``correction_jacobian``, §4.4) and the residual lifts through its damped pseudo-inverse.
 """
 
 from __future__ import annotations
 
 import time as _time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import defaults
+from ..defaults import default_step
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError
 from ..kd import simulate_kd
 from .constraints import Constraint
 from .corrections import CorrectedTrajectory, Correction, Slot
 
-__all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "independent_check", "UPDATES"]
+__all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "independent_check", "UPDATES",
+           "OffGridConstraintWarning"]
 
 UPDATES = ("paper", "secant")
+#: Largest correction of a joint-angle state [rad] before a target is reported out of reach.
+MAX_CORRECTION_RAD = 0.5 * np.pi
+
+
+class OffGridConstraintWarning(UserWarning):
+    """A constraint time falls between frames: it is met there, but a cache of the frames never shows it."""
 
 
 @dataclass
@@ -47,6 +62,7 @@ class IKDResult:
         history: (iterations + 1, C) error of each constraint before the first sweep and after each sweep [m, m/s].
         states: final KD state at each constraint time, list of (N, 3) arrays.
         wall_s: solve wall time [s]; kd_states: KD states simulated (trials included); kd_calls: simulate_kd calls.
+        update, step_scale: the update rule and its scale s.
     """
 
     correction: Correction
@@ -60,17 +76,25 @@ class IKDResult:
     wall_s: float
     kd_states: int = 0
     kd_calls: int = 0
-    update: str = "paper"
-    damping: float = 1.0
+    update: str = defaults.SOLVER_UPDATE
+    step_scale: float = defaults.STEP_SCALE
     extra: dict = field(default_factory=dict)
 
     @property
     def errors_before(self) -> np.ndarray:
+        """Each constraint's error before the first sweep (C,) [m or m/s]."""
         return self.history[0]
 
     @property
     def errors_after(self) -> np.ndarray:
+        """Each constraint's error after the last sweep (C,) [m or m/s]."""
         return self.history[-1]
+
+    @property
+    def damping(self) -> float:
+        """Deprecated name of :attr:`step_scale`."""
+        warn_renamed("IKDResult", "damping", "step_scale")
+        return self.step_scale
 
 
 def build_correction(constraints: list[Constraint], state_shape) -> tuple[Correction, list[int]]:
@@ -80,22 +104,22 @@ def build_correction(constraints: list[Constraint], state_shape) -> tuple[Correc
     """
     keys: dict[tuple[float, str], list[int]] = {}
     for i, c in enumerate(constraints):
-        keys.setdefault((round(c.time, 9), c.slot_kind), []).append(i)
+        keys.setdefault((round(c.time_s, 9), c.slot_kind), []).append(i)
     slots, slot_of = [], [0] * len(constraints)
     for a, (_key, members) in enumerate(sorted(keys.items())):
         first = constraints[members[0]]
         for i in members[1:]:
             c = constraints[i]
             if c.basis != first.basis:
-                raise KDInputError(f"constraints {first.label!r} and {c.label!r} at t = {c.time} s share one "
-                                   "correction curve but ask for different curve shapes or widths")
+                raise KDInputError(f"constraints {first.name} and {c.name} share one correction curve but ask for "
+                                   "different curve shapes or widths")
             _check_conflict(first, c)
             for j in members[1:]:
                 if j < i:
                     _check_conflict(constraints[j], c)
             slot_of[i] = a
         slot_of[members[0]] = a
-        slots.append(Slot(first.time, first.slot_kind, first.basis))
+        slots.append(Slot(first.time_s, first.slot_kind, first.basis))
     return Correction(slots, state_shape), slot_of
 
 
@@ -106,21 +130,20 @@ def _check_conflict(a: Constraint, b: Constraint) -> None:
             pos = dict(zip(other.indices.tolist(), other.target))
             p = ee.weights @ np.array([pos[i] for i in ee.indices.tolist()])
             if np.linalg.norm(p - ee.target) > 1e-9:
-                raise KDInputError(f"constraints {a.label!r} and {b.label!r} at t = {a.time} s have conflicting "
-                                   f"targets: the pose puts the end effector {np.linalg.norm(p - ee.target):.3g} m "
-                                   "from its target")
+                raise KDInputError(f"constraints {a.name} and {b.name} have conflicting targets: the pose puts the "
+                                   f"end effector {np.linalg.norm(p - ee.target):.3g} m from its target")
         return
     shared, ia, ib = np.intersect1d(a.indices, b.indices, return_indices=True)
     if len(shared) and np.abs(a.target[ia] - b.target[ib]).max() > 1e-9:
-        raise KDInputError(f"constraints {a.label!r} and {b.label!r} at t = {a.time} s have conflicting targets "
-                           f"on {len(shared)} shared vertices")
+        raise KDInputError(f"constraints {a.name} and {b.name} have conflicting targets on {len(shared)} shared "
+                           "vertices")
 
 
 class _KD:
     """Counts and batches the KD simulations of a solve."""
 
-    def __init__(self, system, window, h):
-        self.system, self.window, self.h = system, window, h
+    def __init__(self, system, window_s, step_s):
+        self.system, self.window_s, self.h = system, window_s, step_s
         self.calls = 0
         self.states = 0
 
@@ -128,11 +151,11 @@ class _KD:
         """KD states (x, x_prev) for each constraint, all simulated in one batch."""
         times = []
         for c in constraints:
-            times.append(c.time)
+            times.append(c.time_s)
             if c.needs_previous:
-                times.append(c.time - self.h)
+                times.append(c.time_s - self.h)
         uniq, inv = np.unique(np.round(np.asarray(times), 12), return_inverse=True)
-        X = np.asarray(simulate_kd(self.system, trajectory, uniq, self.window, h=self.h), dtype=np.float64)
+        X = np.asarray(simulate_kd(self.system, trajectory, uniq, self.window_s, step_s=self.h), dtype=np.float64)
         self.calls += 1
         self.states += len(uniq)
         out, k = [], 0
@@ -147,13 +170,13 @@ class _KD:
         return out
 
 
-def constraint_errors(constraints, pairs, h) -> tuple[list[np.ndarray], np.ndarray]:
-    """Residuals and reported errors of constraints for their KD state pairs (x, x_prev)."""
-    res = [c.residual(x, xp, h) for c, (x, xp) in zip(constraints, pairs)]
+def constraint_errors(constraints, pairs, step_s) -> tuple[list[np.ndarray], np.ndarray]:
+    """Residuals and reported errors of constraints for their KD state pairs (x, x_prev); ``step_s`` [s]."""
+    res = [c.residual(x, xp, step_s) for c, (x, xp) in zip(constraints, pairs)]
     return res, np.array([c.error(r) for c, r in zip(constraints, res)])
 
 
-def _response(c: Constraint, r: np.ndarray, d: np.ndarray) -> np.ndarray | float | None:
+def _response(c: Constraint, r: np.ndarray, d: np.ndarray, *, scalar_only: bool) -> np.ndarray | float | None:
     """Estimated response of the measured quantity to a correction lift(r): d ≈ c ⊙ r (per coordinate)."""
     rr = float((r * r).sum())
     if rr == 0.0:
@@ -161,7 +184,7 @@ def _response(c: Constraint, r: np.ndarray, d: np.ndarray) -> np.ndarray | float
     scalar = float((r * d).sum()) / rr
     if not np.isfinite(scalar) or scalar <= 0.0:
         return None
-    if c.kind == "end_effector":
+    if c.kind == "end_effector" or scalar_only:
         return scalar
     big = np.abs(r) >= 0.05 * np.abs(r).max()
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -169,42 +192,92 @@ def _response(c: Constraint, r: np.ndarray, d: np.ndarray) -> np.ndarray | float
     return np.clip(per, 0.2 * scalar, 5.0 * scalar)
 
 
-def solve_ikd(system, trajectory, constraints: list[Constraint], *, window: float, h: float = 1.0 / 25.0,
-              update: str = "paper", damping: float = 1.0, tolerance_m: float = 1e-5, tolerance_mps: float = 1e-4,
-              max_iterations: int = 20, max_correction: float = 1.0, callback=None) -> IKDResult:
+class _Lifter:
+    """Maps a constraint's residual to a correction of the trajectory's state (see the module docstring)."""
+
+    def __init__(self, system, trajectory, observed_shape):
+        self.state_shape = tuple(getattr(trajectory, "state_shape", None) or observed_shape)
+        self.jacobian = getattr(system, "correction_jacobian", None)
+        self.through = self.state_shape != tuple(observed_shape)
+        if self.through and self.jacobian is None:
+            raise KDInputError(f"solver: the trajectory's state {self.state_shape} is not what the system observes "
+                               f"{tuple(observed_shape)}, and the system has no correction_jacobian to map between")
+        self.num_points = observed_shape[0]
+
+    def __call__(self, c: Constraint, r: np.ndarray, x: np.ndarray, trajectory) -> np.ndarray:
+        if not self.through:
+            return c.lift(r, self.num_points)
+        return c.lift_through(r, self.jacobian(trajectory, c.time_s, x, c.indices))
+
+
+def _check_frames(constraints, trajectory, snap: bool) -> list[Constraint]:
+    """Warn about (or with ``snap``, move to the nearest frame) constraints between the trajectory's frames."""
+    fps, start = getattr(trajectory, "fps", None), getattr(trajectory, "start", 0.0)
+    if fps is None:
+        return constraints
+    out = []
+    for c in constraints:
+        k = round((c.time_s - start) * fps)
+        on = start + k / fps
+        if abs(on - c.time_s) > 1e-9 * max(1.0, abs(c.time_s)):
+            if snap:
+                c = c.at_time(on)
+            else:
+                warnings.warn(f"constraint {c.name} lies between frames of a {fps:g} fps shot: it is met at "
+                              f"{c.time_s:g} s, but a cache of the frames never shows it (snap_to_frames moves it "
+                              f"to {on:g} s)", OffGridConstraintWarning, stacklevel=4)
+        out.append(c)
+    return out
+
+
+@renamed_kwargs(window="window_s", h="step_s", damping="step_scale", max_correction="max_correction_m")
+def solve_ikd(system, trajectory, constraints: list[Constraint], *, window_s: float, step_s: float | None = None,
+              update: str = defaults.SOLVER_UPDATE, step_scale: float = defaults.STEP_SCALE,
+              tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
+              max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
+              snap_to_frames: bool = False, callback=None) -> IKDResult:
     """Solve for a correction f so that KD states of x_K + f meet ``constraints`` (Algorithm 1 or secant).
 
     Args:
-        system: a KD system (:mod:`kdfaces.kd` protocol); ``observe`` must give (B, N, 3) vertex positions [m].
-        trajectory: the kinematic trajectory x_K (``evaluate(times, order)``, ``start``, ``end``).
+        system: a KD system (:mod:`kdfaces.kd` protocol); ``observe`` gives (B, P, 3) points [m].
+        trajectory: the kinematic trajectory (``evaluate(times, order)``, ``start``, ``end``, ``state_shape``).
         constraints: the constraints; velocity constraints need t_i − h inside the shot.
-        window: KD window δ [s]; h: simulation step [s].
-        update: "paper" (Algorithm 1) or "secant" (batched, see module doc); damping: s in (0, 1].
+        window_s: KD window δ [s]; step_s: simulation step [s] (default the frame interval).
+        update: "secant" (batched, see module doc) or "paper" (Algorithm 1); step_scale: s in (0, 1].
         tolerance_m / tolerance_mps: stop when every constraint's max-vertex error is below these [m, m/s].
-        max_iterations: sweeps over all constraints; max_correction: largest per-vertex |Δx| [m] (|Δẋ| [m/s]);
-            a target that needs more is reported out of reach, with the residual of the clamped correction.
+        max_iterations: sweeps over all constraints; max_correction_m: largest per-vertex |Δx| [m] (|Δẋ| [m/s];
+            π/2 rad for a joint-angle state); a target that needs more is reported out of reach, with the
+            residual of the clamped correction.
+        snap_to_frames: move constraints that fall between frames onto the nearest frame (else they warn with
+            :class:`OffGridConstraintWarning`).
         callback: optional ``callback(iteration, errors)`` after each sweep.
     """
     if update not in UPDATES:
         raise KDInputError(f"solver update {update!r} unknown; expected one of {UPDATES}")
-    if not (0.0 < damping <= 1.0):
-        raise KDInputError(f"solver damping: expected 0 < s ≤ 1, got {damping}")
+    if not (0.0 < step_scale <= 1.0):
+        raise KDInputError(f"solver step_scale: expected 0 < s ≤ 1, got {step_scale}")
     if max_iterations < 1:
         raise KDInputError(f"solver max_iterations: expected ≥ 1, got {max_iterations}")
     if not constraints:
         raise KDInputError("solver: no constraints")
+    h = default_step(trajectory, step_s)
+    constraints = _check_frames(list(constraints), trajectory, snap_to_frames)
     start = getattr(trajectory, "start", -np.inf)
     for c in constraints:
-        if c.needs_previous and c.time - h < start - 1e-9:
-            raise KDInputError(f"constraint {c.label!r}: a velocity constraint needs t − h ≥ shot start "
-                               f"({c.time} − {h} < {start})")
+        if c.needs_previous and c.time_s - h < start - 1e-9:
+            raise KDInputError(f"constraint {c.name}: a velocity constraint needs t − h ≥ shot start "
+                               f"({c.time_s} − {h} < {start})")
     t0 = _time.perf_counter()
-    kd = _KD(system, window, h)
+    kd = _KD(system, window_s, h)
     pairs = kd.at(trajectory, constraints)
-    n_vertices = pairs[0][0].shape[0]
-    corr, slot_of = build_correction(constraints, pairs[0][0].shape)
+    observed = pairs[0][0].shape
+    for c in constraints:
+        c.check_state(observed[0])
+    lift = _Lifter(system, trajectory, observed)
+    corr, slot_of = build_correction(constraints, lift.state_shape)
     traj_f = CorrectedTrajectory(trajectory, corr)
     tol = np.array([tolerance_mps if c.kind == "velocity" else tolerance_m for c in constraints])
+    limit = MAX_CORRECTION_RAD if lift.through else max_correction_m
     res, err = constraint_errors(constraints, pairs, h)
     history = [err]
     responses: list = [None] * len(constraints)
@@ -215,26 +288,27 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window: floa
             for i, c in enumerate(constraints):
                 (x, xp), = kd.at(traj_f, [c])  # line 7
                 r = c.residual(x, xp, h)
-                e = c.lift(r, n_vertices)  # line 8 (eq. 1 or 4)
+                e = lift(c, r, x, traj_f)  # line 8 (eq. 1 or 4)
                 bump = CorrectedTrajectory(trajectory, corr, bump=(corr.slots[slot_of[i]], e))
                 (xt, xtp), = kd.at(bump, [c])  # line 9
                 d = c.measure(xt, xtp, h) - c.measure(x, xp, h)
                 dd = float((d * d).sum())
                 if dd == 0.0:
                     continue
-                corr.values[slot_of[i]] += damping * float((r * d).sum()) / dd * e  # line 10 (eq. 3 or 5)
+                corr.values[slot_of[i]] += step_scale * float((r * d).sum()) / dd * e  # line 10 (eq. 3 or 5)
                 corr.update()  # line 11
         else:
             for i, c in enumerate(constraints):
                 if responses[i] is None and err[i] > tol[i]:
                     x, xp = pairs[i]
-                    e = c.lift(res[i], n_vertices)
+                    e = lift(c, res[i], x, traj_f)
                     bump = CorrectedTrajectory(trajectory, corr, bump=(corr.slots[slot_of[i]], e))
                     (xt, xtp), = kd.at(bump, [c])
-                    responses[i] = _response(c, res[i], c.measure(xt, xtp, h) - c.measure(x, xp, h))
+                    responses[i] = _response(c, res[i], c.measure(xt, xtp, h) - c.measure(x, xp, h),
+                                             scalar_only=lift.through)
             for i, c in enumerate(constraints):
                 if err[i] > tol[i] and responses[i] is not None:
-                    corr.values[slot_of[i]] += damping * c.lift(res[i] / responses[i], n_vertices)
+                    corr.values[slot_of[i]] += step_scale * lift(c, res[i] / responses[i], pairs[i][0], traj_f)
             corr.update()
         pairs = kd.at(traj_f, constraints)  # lines 13-17, one batch
         prev = err
@@ -250,9 +324,9 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window: floa
             reason = "diverged"
             break
         norms = np.linalg.norm(corr.values, axis=-1)
-        if norms.max() > max_correction:
+        if norms.max() > limit:
             # the target needs a larger edit than allowed: clamp to the allowed size and report the residual there
-            corr.values *= np.minimum(1.0, max_correction / np.maximum(norms, 1e-300))[..., None]
+            corr.values *= np.minimum(1.0, limit / np.maximum(norms, 1e-300))[..., None]
             corr.update()
             pairs = kd.at(traj_f, constraints)
             res, err = constraint_errors(constraints, pairs, h)
@@ -267,16 +341,17 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window: floa
     return IKDResult(correction=corr, trajectory=traj_f, constraints=list(constraints),
                      converged=bool((err <= tol).all()), reason=reason, iterations=it, history=np.array(history),
                      states=[x for x, _ in pairs], wall_s=_time.perf_counter() - t0, kd_states=kd.states,
-                     kd_calls=kd.calls, update=update, damping=damping)
+                     kd_calls=kd.calls, update=update, step_scale=step_scale)
 
 
-def independent_check(system, result: IKDResult, *, window: float, h: float) -> np.ndarray:
+@renamed_kwargs(window="window_s", h="step_s")
+def independent_check(system, result: IKDResult, *, window_s: float, step_s: float | None = None) -> np.ndarray:
     """Each constraint's error recomputed from scratch, one KD simulation per state, with the final correction."""
+    h = default_step(result.trajectory, step_s)
     errs = []
     for c in result.constraints:
-        x = np.asarray(simulate_kd(system, result.trajectory, [c.time], window, h=h))[0]
-        xp = np.asarray(simulate_kd(system, result.trajectory, [c.time - h], window, h=h))[0] \
+        x = np.asarray(simulate_kd(system, result.trajectory, [c.time_s], window_s, step_s=h))[0]
+        xp = np.asarray(simulate_kd(system, result.trajectory, [c.time_s - h], window_s, step_s=h))[0] \
             if c.needs_previous else None
         errs.append(c.error(c.residual(x, xp, h)))
     return np.array(errs)
-

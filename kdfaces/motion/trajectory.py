@@ -7,6 +7,7 @@ and head joints, with exact derivatives from the curves (no finite differences).
 
 from __future__ import annotations
 
+import itertools
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -16,9 +17,11 @@ from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
-from .joints import SkeletonAnimation
+from .joints import JointTrajectory, SkeletonAnimation
 
 __all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory"]
+
+_TOKENS = itertools.count()
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,24 @@ class KinematicTrajectory:
                         for t in animation.tracks]
         if animation.skeleton.drives and rig.skeleton is None:
             raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+        #: identifies the content for caches (rig and animation are immutable, so one token per trajectory)
+        self.version = ("kinematic", next(_TOKENS))
+        self._joints = None
+
+    @property
+    def state_shape(self) -> tuple[int, int]:
+        """(N, 3): the state IKD corrects is every vertex position [m]."""
+        return (self.rig.num_vertices, 3)
+
+    @property
+    def joints(self) -> JointTrajectory:
+        """The joint-angle trajectory θ_K(t) of the same animation (what drives the head and attached objects)."""
+        if self.rig.skeleton is None:
+            raise KDInputError(f"rig {self.rig.name!r} has no skeleton, so its trajectory has no joint angles")
+        if self._joints is None:
+            a = self.animation
+            self._joints = JointTrajectory(self.rig.skeleton, a.skeleton, start_s=a.start, end_s=a.end, fps=a.fps)
+        return self._joints
 
     @property
     def num_vertices(self) -> int:

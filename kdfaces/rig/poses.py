@@ -8,10 +8,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..deprecation import warn_renamed
 from ..errors import KDInputError, check_finite
 from .skeleton import HEAD_CHAIN_SPLIT, joint_transforms, skin
 
 __all__ = ["rig_pose", "kinematic_pose"]
+
+
+def _vector3(value, where: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise KDInputError(f"{where}: expected three numbers (yaw, pitch, roll), got {value!r}") from None
+    if v.shape != (3,):
+        raise KDInputError(f"{where}: expected three numbers (yaw, pitch, roll), got shape {v.shape}")
+    check_finite(v, where)
+    return v
 
 
 def rig_pose(rig, weights, joint_angles=None) -> np.ndarray:
@@ -25,14 +37,25 @@ def rig_pose(rig, weights, joint_angles=None) -> np.ndarray:
     return skin(rig.skeleton, G, x[None])[0][0]
 
 
-def kinematic_pose(trajectory, time: float, *, weights: dict | None = None, head_offset=None,
-                   where: str = "target") -> np.ndarray:
-    """The pose of ``trajectory`` at ``time`` [s] with some shape weights replaced and the head rotated further.
+def kinematic_pose(trajectory, time_s: float, *, weights: dict | None = None, head_deg=None,
+                   where: str = "target", **deprecated) -> np.ndarray:
+    """The pose (N, 3) [m] of ``trajectory`` at ``time_s`` [s] with some shape weights replaced and the head turned.
 
     Args:
-        weights: ``{shape name: weight}`` replacing the animation's weights of those shapes at ``time``.
-        head_offset: (yaw, pitch, roll) [rad] added to the head, shared by the neck chain as a head turn is.
+        weights: ``{shape name: weight}`` replacing the animation's weights of those shapes at ``time_s``.
+        head_deg: (yaw, pitch, roll) [degrees] added to the head, shared by the neck chain as a head turn is.
+        where: names the caller in error messages.
     """
+    if "time" in deprecated:
+        warn_renamed("kinematic_pose", "time", "time_s")
+        time_s = deprecated.pop("time")
+    if "head_offset" in deprecated:  # radians
+        warn_renamed("kinematic_pose", "head_offset (radians)", "head_deg (degrees)")
+        head_deg = np.degrees(np.asarray(deprecated.pop("head_offset"), dtype=np.float64))
+    if deprecated:
+        raise KDInputError(f"kinematic_pose: unknown argument(s) {sorted(deprecated)}")
+    time = time_s
+    head_offset = None if head_deg is None else np.radians(_vector3(head_deg, f"{where}.head_deg"))
     rig = trajectory.rig
     w = trajectory.weights([time], 0)[0][0].copy()
     if weights:
@@ -45,9 +68,7 @@ def kinematic_pose(trajectory, time: float, *, weights: dict | None = None, head
         skel = rig.skeleton
         angles = trajectory.animation.skeleton.joint_angles(skel, [time], 0)[0][0]
         if head_offset is not None:
-            off = np.asarray(head_offset, dtype=np.float64)
-            if off.shape != (3,):
-                raise KDInputError(f"{where}.head_deg: expected (yaw, pitch, roll), got shape {off.shape}")
+            off = head_offset
             for joint, share in HEAD_CHAIN_SPLIT.items():
                 angles[skel.index(joint)] += share * off
     elif head_offset is not None:

@@ -48,24 +48,23 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
     out = Path(out)
     shot = load_shot(DEMO_SHOT, rig=rig)
     run = run_shot(shot, threads=threads)
-    traj, system, h = shot.trajectory, run.system, run.h
-    full = simulate_full(system, traj, run.times, h=h)
+    traj, system, h = shot.trajectory, run.system, run.step_s
+    full = simulate_full(system, traj, run.times, step_s=h)
     windows = sorted({*DEMO_SWEEP_S, run.window_s})
-    report = kd_error_report(system, traj, windows, h=h, times=run.times, full=full, epsilon=run.epsilon_m,
-                             window_auto=run.window_s)
+    report = kd_error_report(system, traj, windows, step_s=h, times=run.times, full=full, epsilon_m=run.epsilon_m,
+                             window_auto_s=run.window_s)
     constraints = run.ikd_result.constraints
-    sv = shot.solver
+    options = shot.solver_options()
     variants = {"paper": ("paper", 1.0), "scaled (s = 0.8)": ("paper", 0.8)}
-    runs = {label: solve_ikd(system, traj, constraints, window=run.window_s, h=h, update=u, damping=s,
-                             tolerance_m=sv["tolerance_m"], tolerance_mps=sv["tolerance_mps"],
-                             max_iterations=int(sv["max_iterations"]))
+    runs = {label: solve_ikd(system, traj, constraints, window_s=run.window_s, step_s=h,
+                             **{**options, "update": u, "step_scale": s})
             for label, (u, s) in variants.items()}
     runs[f"{run.ikd_result.update} (ours)"] = run.ikd_result
     paths = write_run_outputs(run, out, exports=exports, convergence_runs=runs)
     paths += list(write_kd_report(out, report))
     if offset_grid:
         c = constraints[0]
-        errs, _ = grid_errors(system, traj, c, DEMO_OFFSETS_M, window=run.window_s, h=h, iterations=6,
+        errs, _ = grid_errors(system, traj, c, DEMO_OFFSETS_M, window_s=run.window_s, step_s=h, iterations=6,
                               update="paper")
         paths.append(offset_grid_plot(out / "ikd_offset_grid.png", DEMO_OFFSETS_M, errs,
                                       title=f"{c.label}: error after 6 paper iterations"))
@@ -80,7 +79,7 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
             "window_s": run.window_s,
             "window_auto_s": run.window_auto_s,
             "epsilon_m": run.epsilon_m,
-            "settle_time_s": float(system.model.settle_time.max()),
+            "settle_time_s": float(system.model.settle_time_s.max()),
             "ms_per_state": run.ms_per_state,
             "max_deviation_from_kinematic_m": float(np.linalg.norm(run.kd - run.kinematic, axis=-1).max()),
             "sweep": [{"window_s": float(w), "max_error_vs_full_m": float(e.max())}

@@ -36,19 +36,19 @@ def still_states(run, times) -> dict[str, np.ndarray]:
     at exactly those times (constraint times need not be frames)."""
     t = np.asarray(times, dtype=np.float64)
     traj = run.shot.trajectory
-    h = run.shot.step
-    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, h=h)}
+    h = run.shot.step_s
+    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, step_s=h)}
     if run.ikd_result is not None:
-        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, h=h)
+        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, step_s=h)
     return rows
 
 
 def _constraint_states(run, constraints, trajectory) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """KD states (x(t_i), x(t_i − h)) of each constraint on ``trajectory``, in one batched simulation."""
-    h = run.shot.step
-    t = np.array([c.time for c in constraints])
+    h = run.shot.step_s
+    t = np.array([c.time_s for c in constraints])
     both = np.concatenate([t, np.maximum(t - h, run.shot.trajectory.start)])
-    x = simulate_kd(run.system, trajectory, both, run.window_s, h=h)
+    x = simulate_kd(run.system, trajectory, both, run.window_s, step_s=h)
     n = len(t)
     return [(x[i], x[n + i] if c.kind == "velocity" else None) for i, c in enumerate(constraints)]
 
@@ -91,12 +91,12 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     if constraints:
         panel_rows = {"KD (before)": _constraint_states(run, constraints, shot.trajectory),
                       "IKD (after)": _constraint_states(run, constraints, ikd_result.trajectory)}
-        outputs.append(constraint_panel(out / "constraints.png", rig.faces, constraints, panel_rows, h=shot.step,
+        outputs.append(constraint_panel(out / "constraints.png", rig.faces, constraints, panel_rows, step_s=shot.step_s,
                                         reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)"))
     rows = {"kinematic": run.kinematic, "KD": run.kd}
     if run.ikd is not None:
         rows["IKD"] = run.ikd
-    fps = float(getattr(shot.animation, "fps", 1.0 / shot.step))
+    fps = float(shot.animation.fps)
     frame_s = []
     if movie:
         outputs.append(render_movie(out / "movie", rig.faces, rows, times, fps=fps, reference=reference,
@@ -126,7 +126,7 @@ def _render_command(args) -> dict:
     if args.out is None:
         args.out = str(Path("kd-out") / Path(args.shot).stem)
     t0 = time.perf_counter()
-    run = run_shot(shot, window=args.window)
+    run = run_shot(shot, window_s=args.window)
     t1 = time.perf_counter()
     summary = render_shot(run, args.out, frames=args.frames, movie=not args.no_movie, movie_format=args.movie_format,
                           exports=args.export)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_kd
@@ -49,8 +50,9 @@ class ShotRun:
     ms_per_state: float
 
     @property
-    def h(self) -> float:
-        return self.shot.step
+    def step_s(self) -> float:
+        """The simulation step [s]."""
+        return self.shot.step_s
 
     @property
     def final(self) -> np.ndarray:
@@ -58,12 +60,14 @@ class ShotRun:
         return self.kd if self.ikd is None else self.ikd
 
 
-def run_shot(shot: Shot | str | Path, *, window: float | None = None, solve: bool = True, device="cpu",
-             threads: int = 2, update: str | None = None, damping: float | None = None) -> ShotRun:
+@renamed_kwargs(window="window_s", damping="step_scale")
+def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
+             threads: int = 2, update: str | None = None, step_scale: float | None = None) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
 
-    ``window`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``damping`` override the solver's.
+    ``window_s`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``step_scale`` override the solver's.
     """
+    window = window_s
     from ..dynamics import FaceSystem
     from ..window import automatic_window
 
@@ -72,8 +76,8 @@ def run_shot(shot: Shot | str | Path, *, window: float | None = None, solve: boo
     model = shot.model()
     system = FaceSystem(model, device=device, threads=threads)
     traj = shot.trajectory
-    h = shot.step
-    est = automatic_window(model, traj, h=h)
+    h = shot.step_s
+    est = automatic_window(model, traj, step_s=h)
     auto = max(est.window_s, h)
     if window is None:
         w = shot.dynamics["window_s"]
@@ -83,21 +87,19 @@ def run_shot(shot: Shot | str | Path, *, window: float | None = None, solve: boo
     times = shot.animation.frame_times
     kinematic = traj.positions(times)
     t0 = _time.perf_counter()
-    kd = simulate_kd(system, traj, times, window, h=h)
+    kd = simulate_kd(system, traj, times, window, step_s=h)
     ms = 1e3 * (_time.perf_counter() - t0) / len(times)
     result = ikd = check = None
     constraints = shot.constraints()
     if solve and constraints:
-        s = dict(shot.solver)
+        s = shot.solver_options()
         if update is not None:
             s["update"] = update
-        if damping is not None:
-            s["damping"] = damping
-        result = solve_ikd(system, traj, constraints, window=window, h=h, update=s["update"], damping=s["damping"],
-                           tolerance_m=s["tolerance_m"], tolerance_mps=s["tolerance_mps"],
-                           max_iterations=int(s["max_iterations"]), max_correction=s["max_correction_m"])
-        ikd = simulate_kd(system, result.trajectory, times, window, h=h)
-        check = independent_check(system, result, window=window, h=h)
+        if step_scale is not None:
+            s["step_scale"] = step_scale
+        result = solve_ikd(system, traj, constraints, window_s=window, step_s=h, **s)
+        ikd = simulate_kd(system, result.trajectory, times, window, step_s=h)
+        check = independent_check(system, result, window_s=window, step_s=h)
     return ShotRun(shot=shot, system=system, times=times, kinematic=kinematic, kd=kd, ikd=ikd, ikd_result=result,
                    check_errors=check, window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m,
                    ms_per_state=ms)
@@ -114,7 +116,7 @@ def ikd_summary(run: ShotRun) -> dict:
         "update": r.update,
         "kd_states_simulated": int(r.kd_states),
         "constraints": [
-            {"label": c.label, "time_s": c.time, "kind": c.kind, "unit": c.unit,
+            {"label": c.label, "time_s": c.time_s, "kind": c.kind, "unit": c.unit,
              "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i])}
             for i, c in enumerate(r.constraints)
         ],
@@ -126,7 +128,7 @@ def ikd_summary(run: ShotRun) -> dict:
 def strip_times(run: ShotRun, count: int = 6) -> np.ndarray:
     """Times [s] for filmstrips: every constraint time, filled up with evenly spaced times, at most ``count``."""
     anim = run.shot.animation
-    cts = sorted({c.time for c in run.ikd_result.constraints}) if run.ikd_result else []
+    cts = sorted({c.time_s for c in run.ikd_result.constraints}) if run.ikd_result else []
     fill = np.linspace(anim.start, anim.end, max(count, 2) + 2)[1:-1]
     t = list(cts)
     for f in fill:
@@ -152,9 +154,9 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
     t = strip_times(run)
     # KD is history-free: the strip's times (constraint times need not be frames) are simulated on their own
     traj = run.shot.trajectory
-    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, h=run.h)}
+    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, step_s=run.step_s)}
     if run.ikd_result is not None:
-        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, h=run.h)
+        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, step_s=run.step_s)
     paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}")]
     if run.ikd_result is not None:
         runs = convergence_runs or {run.ikd_result.update: run.ikd_result}
@@ -168,7 +170,7 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
 def _run_command(args) -> dict:
     from ..io.summary import write_summary
 
-    run = run_shot(args.shot, window=args.window)
+    run = run_shot(args.shot, window_s=args.window)
     if args.out is None:
         args.out = str(Path("kd-out") / Path(args.shot).stem)
     out = Path(args.out)

@@ -17,9 +17,9 @@ fps = 25                           # optional; start_s / end_s crop a capture
 settle_time_s = 0.25               # or { stiff_s = 0.12, loose_s = 0.4 } (per-vertex map: loose cheeks and lips)
 damping_ratio = 0.3
 shape_matching_alpha = 0.2
-damping = "relative"               # or "absolute" (the paper's −K_d·ẋ)
+damping_mode = "relative"          # or "absolute" (the paper's −K_d·ẋ)
 window_s = "auto"                  # or seconds
-step_s = 0.04
+step_s = "frame"                   # the animation's frame interval (default), or seconds
 
 [[constraints]]
 time_s = 2.4
@@ -32,13 +32,15 @@ curve = "gaussian"                 # gaussian | poly | asymmetric (with ease_out
 
 [solver]
 update = "secant"                  # "paper" (Algorithm 1) or "secant"
-damping = 1.0                      # 0.8 is the paper's "scaled"
+step_scale = 1.0                   # 0.8 is the paper's "scaled"
 tolerance_m = 1e-5
 tolerance_mps = 1e-4
 max_iterations = 20
+snap_to_frames = false             # move constraints between frames onto the nearest frame (else a warning)
 ```
 
-Paths inside a shot file are relative to the file. Every error names the file and the field.
+Paths inside a shot file are relative to the file. Every error names the file and the field. Defaults come from
+:mod:`kdfaces.defaults`, the same ones the Python API uses.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
+from ..deprecation import warn_renamed
 from ..errors import KDInputError
 from ..ikd.bases import make_basis
 from ..ikd.constraints import (
@@ -69,11 +73,28 @@ from ..rig.poses import kinematic_pose
 __all__ = ["Shot", "load_shot", "parse_shot", "read_shot_table", "dynamics_model", "settle_time", "DYNAMICS_DEFAULTS",
            "SOLVER_DEFAULTS"]
 
-DYNAMICS_DEFAULTS = {"settle_time_s": 0.25, "damping_ratio": 0.3, "shape_matching_alpha": 0.2,
-                     "damping": "relative", "window_s": "auto", "step_s": 0.04, "areal_density_kg_m2": 10.0}
-SOLVER_DEFAULTS = {"update": "secant", "damping": 1.0, "tolerance_m": 1e-5, "tolerance_mps": 1e-4,
-                   "max_iterations": 20, "max_correction_m": 0.5}
+DYNAMICS_DEFAULTS = {"settle_time_s": defaults.SETTLE_TIME_S, "damping_ratio": defaults.DAMPING_RATIO,
+                     "shape_matching_alpha": defaults.SHAPE_MATCHING_ALPHA, "damping_mode": defaults.DAMPING_MODE,
+                     "window_s": defaults.WINDOW_S, "step_s": "frame",
+                     "areal_density_kg_m2": defaults.AREAL_DENSITY_KG_M2}
+SOLVER_DEFAULTS = {"update": defaults.SOLVER_UPDATE, "step_scale": defaults.STEP_SCALE,
+                   "tolerance_m": defaults.TOLERANCE_M, "tolerance_mps": defaults.TOLERANCE_MPS,
+                   "max_iterations": defaults.MAX_ITERATIONS, "max_correction_m": defaults.MAX_CORRECTION_M,
+                   "snap_to_frames": False}
+#: Keys renamed in shot files: the old spelling still works for one release, with a DeprecationWarning.
+RENAMED_KEYS = {"dynamics": {"damping": "damping_mode"}, "solver": {"damping": "step_scale"}}
 _CONSTRAINT_KEYS = {"time_s", "kind", "target", "group", "width_s", "curve", "ease_out_s", "label"}
+
+
+def _renamed(table: dict, section: str, where: str) -> dict:
+    out = dict(table)
+    for old, new in RENAMED_KEYS.get(section, {}).items():
+        if old in out:
+            if new in out:
+                raise KDInputError(f"{where}: both '{old}' (its old name) and '{new}' are set; keep '{new}'")
+            warn_renamed(where, old, new, stacklevel=4)
+            out[new] = out.pop(old)
+    return out
 _TARGET_KEYS = {"weights", "head_deg", "obj", "offset_m", "velocity_mps", "point_m"}
 
 
@@ -115,8 +136,16 @@ class Shot:
         return self._trajectory
 
     @property
+    def step_s(self) -> float:
+        """The simulation step [s]: ``[dynamics] step_s``, by default the animation's frame interval."""
+        s = self.dynamics["step_s"]
+        return 1.0 / self.animation.fps if s == "frame" else float(s)
+
+    @property
     def step(self) -> float:
-        return float(self.dynamics["step_s"])
+        """Deprecated name of :attr:`step_s`."""
+        warn_renamed("Shot", "step", "step_s")
+        return self.step_s
 
     def settle_time(self):
         """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section."""
@@ -134,6 +163,13 @@ class Shot:
             build_correction(out, (self.rig.num_vertices, 3))  # same-time conflicts are errors now, not mid-solve
         return out
 
+    def solver_options(self) -> dict:
+        """Keyword arguments of :func:`~kdfaces.ikd.solve_ikd` from the ``[solver]`` table (window aside)."""
+        s = self.solver
+        return dict(update=s["update"], step_scale=float(s["step_scale"]), tolerance_m=float(s["tolerance_m"]),
+                    tolerance_mps=float(s["tolerance_mps"]), max_iterations=int(s["max_iterations"]),
+                    max_correction_m=float(s["max_correction_m"]), snap_to_frames=bool(s["snap_to_frames"]))
+
     def _constraint(self, c: dict, i: int, traj) -> Constraint:
         where = f"{self.path}: constraints[{i}]"
         _keys(c, _CONSTRAINT_KEYS, where)
@@ -145,9 +181,9 @@ class Shot:
         if not (a.start <= t <= a.end):
             raise KDInputError(f"{where}.time_s: {t} s is outside the shot [{a.start}, {a.end}] s")
         kind = c["kind"]
-        width = _number(c, "width_s", where, positive=True) if "width_s" in c else 0.3
+        width = _number(c, "width_s", where, positive=True) if "width_s" in c else defaults.WIDTH_S
         ease_out = _number(c, "ease_out_s", where, positive=True) if "ease_out_s" in c else None
-        basis = make_basis(c.get("curve", "gaussian"), t, sigma=width, sigma_out=ease_out)
+        basis = make_basis(c.get("curve", defaults.CURVE), t, width_s=width, ease_out_s=ease_out)
         label = str(c.get("label", f"{kind}@{t:g}s"))
         n = self.rig.num_vertices
         target = c.get("target", "kinematic")
@@ -162,12 +198,12 @@ class Shot:
                 if pose.shape != (n, 3):
                     raise KDInputError(f"{where}.target.obj: {len(pose)} vertices, rig has {n}")
             else:
-                head = np.radians(np.asarray(tt["head_deg"], dtype=np.float64)) if "head_deg" in tt else None
-                pose = kinematic_pose(traj, t, weights=tt.get("weights"), head_offset=head, where=f"{where}.target")
+                pose = kinematic_pose(traj, t, weights=tt.get("weights"), head_deg=tt.get("head_deg"),
+                                      where=f"{where}.target")
             if "offset_m" in tt:
                 pose = pose + np.asarray(tt["offset_m"], dtype=np.float64)
         if kind == "pose":
-            return pose_constraint(t, pose, basis, label=label)
+            return pose_constraint(t, pose, basis, num_vertices=n, label=label)
         if kind == "subset":
             if group is None:
                 raise KDInputError(f"{where}: a subset constraint needs 'group'")
@@ -201,9 +237,9 @@ def dynamics_model(dynamics: dict, rig, **overrides):
     from ..dynamics import FaceModel
 
     d = {**DYNAMICS_DEFAULTS, **dynamics}
-    kwargs = dict(settle_time=settle_time(d, rig), damping_ratio=float(d["damping_ratio"]),
-                  alpha=float(d["shape_matching_alpha"]), damping=d["damping"],
-                  areal_density=float(d["areal_density_kg_m2"]))
+    kwargs = dict(settle_time_s=settle_time(d, rig), damping_ratio=float(d["damping_ratio"]),
+                  shape_matching_alpha=float(d["shape_matching_alpha"]), damping_mode=d["damping_mode"],
+                  areal_density_kg_m2=float(d["areal_density_kg_m2"]))
     kwargs.update(overrides)
     return FaceModel.from_rig(rig, **kwargs)
 
@@ -272,13 +308,16 @@ def parse_shot(data: dict, path: Path, *, rig=None) -> Shot:
     rig = load_rig(src if src == "default" or rig is not None else path.parent / src)
     anim = _animation(data.get("animation", {}), path.parent, f"{where}: animation", rig)
     dyn = dict(DYNAMICS_DEFAULTS)
-    _keys(data.get("dynamics", {}), set(DYNAMICS_DEFAULTS), f"{where}: dynamics")
-    dyn.update(data.get("dynamics", {}))
+    dyn_table = _renamed(data.get("dynamics", {}), "dynamics", f"{where}: dynamics")
+    _keys(dyn_table, set(DYNAMICS_DEFAULTS), f"{where}: dynamics")
+    dyn.update(dyn_table)
     w = dyn["window_s"]
     if w != "auto" and (isinstance(w, bool) or not isinstance(w, int | float) or not w > 0):
         raise KDInputError(f"{where}: dynamics.window_s: expected \"auto\" or positive seconds, got {w!r}")
-    for key in ("damping_ratio", "step_s", "areal_density_kg_m2"):
+    for key in ("damping_ratio", "areal_density_kg_m2"):
         _number(dyn, key, f"{where}: dynamics", positive=True)
+    if dyn["step_s"] != "frame":
+        _number(dyn, "step_s", f"{where}: dynamics", positive=True)
     st = dyn["settle_time_s"]
     if isinstance(st, dict):
         _keys(st, {"stiff_s", "loose_s"}, f"{where}: dynamics.settle_time_s")
@@ -287,8 +326,9 @@ def parse_shot(data: dict, path: Path, *, rig=None) -> Shot:
     else:
         _number(dyn, "settle_time_s", f"{where}: dynamics", positive=True)
     solver = dict(SOLVER_DEFAULTS)
-    _keys(data.get("solver", {}), set(SOLVER_DEFAULTS), f"{where}: solver")
-    solver.update(data.get("solver", {}))
+    solver_table = _renamed(data.get("solver", {}), "solver", f"{where}: solver")
+    _keys(solver_table, set(SOLVER_DEFAULTS), f"{where}: solver")
+    solver.update(solver_table)
     if solver["update"] not in UPDATES:
         raise KDInputError(f"{where}: solver.update: expected one of {UPDATES}, got {solver['update']!r}")
     constraints = data.get("constraints", [])

@@ -3,10 +3,12 @@ target offsets (Fig. 9 analog)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
+from ..deprecation import renamed_kwargs
 from ..ikd.constraints import Constraint
 from ..ikd.solver import IKDResult, solve_ikd
 from .figures import save_figure
@@ -36,7 +38,7 @@ def convergence_plot(path, runs: dict[str, IKDResult], *, tolerance_m: float | N
             ax.semilogy(np.arange(len(err)), err * (1e3 if c.unit == "m" else 1.0), marker="o", ms=3, label=label)
         if tolerance_m is not None and c.unit == "m":
             ax.axhline(tolerance_m * 1e3, color="k", ls=":", lw=1)
-        ax.set_title(f"{c.label} ({c.kind}, t = {c.time:g} s)", fontsize=8)
+        ax.set_title(f"{c.label} ({c.kind}, t = {c.time_s:g} s)", fontsize=8)
         ax.set_xlabel("iteration")
         ax.set_ylabel("max error [mm]" if c.unit == "m" else "max error [m/s]")
     axes[0, 0].legend(fontsize=7)
@@ -44,10 +46,13 @@ def convergence_plot(path, runs: dict[str, IKDResult], *, tolerance_m: float | N
     return save_figure(fig, path)
 
 
-def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window: float, h: float,
-                iterations: int = 6, update: str = "paper", damping: float = 1.0, axes=(0, 1)):
+@renamed_kwargs(window="window_s", h="step_s", damping="step_scale")
+def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window_s: float,
+                step_s: float | None = None, iterations: int = 6, update: str = "paper", step_scale: float = 1.0,
+                axes=(0, 1)):
     """Error after ``iterations`` sweeps for the constraint's target moved by every (a, b) in ``offsets_m`` (M,)
-    [m] along the two world ``axes``. Returns errors (M, M) [m] (row: first axis offset) and convergence flags."""
+    [m] along the two world ``axes`` (KD window ``window_s`` [s], step ``step_s`` [s]). Returns errors (M, M) [m]
+    (row: first axis offset) and convergence flags."""
     offs = np.asarray(offsets_m, dtype=np.float64)
     err = np.zeros((len(offs), len(offs)))
     ok = np.zeros_like(err, dtype=bool)
@@ -55,10 +60,9 @@ def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window
         for j, b in enumerate(offs):
             shift = np.zeros(3)
             shift[axes[0]], shift[axes[1]] = a, b
-            c = Constraint(constraint.kind, constraint.time, constraint.basis, constraint.indices,
-                           constraint.target + shift, constraint.weights, constraint.damping, constraint.label)
-            r = solve_ikd(system, trajectory, [c], window=window, h=h, update=update, damping=damping,
-                          tolerance_m=0.0, max_iterations=iterations)
+            c = dataclasses.replace(constraint, target=constraint.target + shift)
+            r = solve_ikd(system, trajectory, [c], window_s=window_s, step_s=step_s, update=update,
+                          step_scale=step_scale, tolerance_m=1e-300, max_iterations=iterations)
             err[i, j] = r.errors_after[0]
             ok[i, j] = r.reason != "diverged"
     return err, ok

@@ -13,9 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..defaults import default_step
+from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
-from ..kd import simulate_full, simulate_kd
+from ..kd import observe_kinematic, simulate_full, simulate_kd
 
 __all__ = ["KDErrorReport", "kd_error_report", "write_kd_report"]
 
@@ -55,24 +57,29 @@ class KDErrorReport:
         }
 
 
-def kd_error_report(system, trajectory, windows, *, h: float = 1.0 / 25.0, times=None, full=None,
-                    epsilon: float | None = None, window_auto: float | None = None) -> KDErrorReport:
+@renamed_kwargs(h="step_s", epsilon="epsilon_m", window_auto="window_auto_s")
+def kd_error_report(system, trajectory, windows, *, step_s: float | None = None, times=None, full=None,
+                    epsilon_m: float | None = None, window_auto_s: float | None = None) -> KDErrorReport:
     """Simulate KD for every frame at each window in ``windows`` [s] and compare with the full simulation.
 
-    ``times`` (F,) [s] defaults to the trajectory's frame times; ``full`` (F, N, 3) [m] may pass a full simulation
-    already run at those times.
+    Works on any KD system (faces, the hat): errors and the deviation are measured on what ``system.observe``
+    returns, the kinematic reference is ``system.observe_kinematic``. ``step_s`` [s] defaults to the frame
+    interval; ``times`` (F,) [s] to the trajectory's frame times; ``full`` (F, P, 3) [m] may pass a full
+    simulation already run at those times. ``epsilon_m`` [m] and ``window_auto_s`` [s] are drawn on the plot.
     """
+    h = default_step(trajectory, step_s)
+    epsilon, window_auto = epsilon_m, window_auto_s
     t = np.asarray(trajectory.frame_times if times is None else times, dtype=np.float64)
     w = np.asarray(windows, dtype=np.float64)
     if w.ndim != 1 or len(w) == 0:
         raise KDInputError("windows: expected a non-empty list of seconds")
     if full is None:
-        full = simulate_full(system, trajectory, t, h=h)
-    kin = trajectory.evaluate(t, order=0)[0]
+        full = simulate_full(system, trajectory, t, step_s=h)
+    kin = observe_kinematic(system, trajectory, t)
     errors, seconds = [], []
     for delta in w:
         t0 = time.perf_counter()
-        x = simulate_kd(system, trajectory, t, float(delta), h=h)
+        x = simulate_kd(system, trajectory, t, float(delta), step_s=h)
         seconds.append(time.perf_counter() - t0)
         errors.append(np.linalg.norm(x - full, axis=2).max(axis=1))
     return KDErrorReport(times=t, windows=w, errors=np.stack(errors),

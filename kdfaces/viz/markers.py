@@ -20,37 +20,37 @@ TARGET_COLOR = "#1a9850"
 REACHED_COLOR = "#f46d43"
 
 
-def constraint_points(constraint, x: np.ndarray, x_prev: np.ndarray | None = None, *, h: float = 0.04
+def constraint_points(constraint, x: np.ndarray, x_prev: np.ndarray | None = None, *, step_s: float = 0.04
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(target, reached) points (M, 3) [m] of ``constraint`` on the state ``x`` (N, 3) [m] at its time.
 
-    ``x_prev`` (N, 3) [m], the state at t_i − ``h`` [s], is needed for velocity constraints only.
+    ``x_prev`` (N, 3) [m], the state at t_i − ``step_s`` [s], is needed for velocity constraints only.
     """
     c = constraint
     if c.kind == "end_effector":
-        return c.target.reshape(1, 3), c.measure(x, None, h).reshape(1, 3)
+        return c.target.reshape(1, 3), c.measure(x, None, step_s).reshape(1, 3)
     if c.kind == "velocity":
-        return x_prev[c.indices] + h * c.target, x[c.indices]
+        return x_prev[c.indices] + step_s * c.target, x[c.indices]
     return c.target, x[c.indices]
 
 
-def constraint_markers(constraint, x, x_prev=None, *, h: float = 0.04, max_points: int = 60,
+def constraint_markers(constraint, x, x_prev=None, *, step_s: float = 0.04, max_points: int = 60,
                        size_px: float = 9.0) -> list[Markers]:
     """Target and reached :class:`Markers` of ``constraint`` on state ``x`` (see :func:`constraint_points`)."""
-    target, reached = constraint_points(constraint, x, x_prev, h=h)
+    target, reached = constraint_points(constraint, x, x_prev, step_s=step_s)
     keep = np.unique(np.linspace(0, len(target) - 1, min(len(target), max_points)).round().astype(np.int64))
     return [Markers(target[keep], TARGET_COLOR, size_px * 1.5), Markers(reached[keep], REACHED_COLOR, size_px)]
 
 
 def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.ndarray, np.ndarray | None]]], *,
-                     h: float, reference: np.ndarray, title: str | None = None) -> Path:
+                     step_s: float, reference: np.ndarray, title: str | None = None) -> Path:
     """A PNG with one column per constraint and one row per label, target and reached markers on each face.
 
     Args:
-        constraints: the IKD constraints (``.time``, ``.kind``, ``.label``, ``measure``/``residual``).
+        constraints: the IKD constraints (``.time_s``, ``.kind``, ``.label``, ``measure``/``residual``).
         rows: label → one (x, x_prev) pair per constraint: the state (N, 3) [m] at its time and the state at
             t_i − ``h`` (None unless it is a velocity constraint). Typically "KD" (before IKD) and "IKD" (after).
-        h: KD step [s] (velocity markers and errors).
+        step_s: KD step [s] (velocity markers and errors).
         reference: (N, 3) [m] positions fixing the camera.
 
     Each panel is labelled with the constraint's error max‖target − q‖ in mm (mm/s for velocity constraints).
@@ -58,10 +58,10 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
     images, captions = {}, {}
     with FaceRenderer(faces, reference) as renderer:
         for label, states in rows.items():
-            images[label] = [renderer.render(x, markers=constraint_markers(c, x, xp, h=h))
+            images[label] = [renderer.render(x, markers=constraint_markers(c, x, xp, step_s=step_s))
                              for c, (x, xp) in zip(constraints, states)]
-            captions[label] = [f"error {1e3 * c.error(c.residual(x, xp, h)):.2f} "
+            captions[label] = [f"error {1e3 * c.error(c.residual(x, xp, step_s)):.2f} "
                                f"{'mm/s' if c.kind == 'velocity' else 'mm'}" for c, (x, xp) in zip(constraints, states)]
-    titles = [f"{c.label or c.kind}\nt = {c.time:.2f} s" for c in constraints]
+    titles = [f"{c.label or c.kind}\nt = {c.time_s:.2f} s" for c in constraints]
     fig = image_grid(images, titles, title=title, captions=captions, cell_inches=(2.3, 2.6))
     return save_figure(fig, path)

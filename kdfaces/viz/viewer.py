@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 from ..kd import simulate_kd, window_steps
@@ -30,24 +31,23 @@ MODES = ("kinematic", "kd", "ikd")
 _MODE_NAMES = {"kinematic": "kinematic", "kd": "KD", "ikd": "IKD"}
 
 
-def with_width(constraint, sigma: float):
-    """``constraint`` with its correction bell widened or narrowed to width ``sigma`` [s].
+def with_width(constraint, width_s: float):
+    """``constraint`` with its correction bell widened or narrowed to width ``width_s`` [s].
 
     An asymmetric bell keeps its ease-out / ease-in ratio.
     """
     b = constraint.basis
-    if hasattr(b, "sigma"):
-        nb = dataclasses.replace(b, sigma=float(sigma))
+    if hasattr(b, "ease_out_s"):
+        nb = dataclasses.replace(b, width_s=float(width_s), ease_out_s=float(width_s) * b.ease_out_s / b.width_s)
     else:
-        nb = dataclasses.replace(b, sigma_in=float(sigma), sigma_out=float(sigma) * b.sigma_out / b.sigma_in)
+        nb = dataclasses.replace(b, width_s=float(width_s))
     return dataclasses.replace(constraint, basis=nb)
 
 
 def _initial_width(constraints) -> float:
     for c in constraints:
-        b = c.basis
-        return float(getattr(b, "sigma", getattr(b, "sigma_in", 0.3)))
-    return 0.3
+        return float(c.basis.width_s)
+    return defaults.WIDTH_S
 
 
 class ShotViewer:
@@ -57,7 +57,7 @@ class ShotViewer:
         shot: a :class:`~kdfaces.shots.shotfile.Shot`.
         off_screen: render without a window (screenshots, tests).
         size: window (width, height) in pixels.
-        window: KD window δ [s]; default the shot's ``window_s`` (or the automatic window when "auto").
+        window_s: KD window δ [s]; default the shot's ``window_s`` (or the automatic window when "auto").
         widgets: draw the sliders and the play button (they also appear in screenshots).
 
     Attributes:
@@ -70,29 +70,30 @@ class ShotViewer:
             changed after it was solved (it is still shown, against the new dynamics, until solved again).
     """
 
-    def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window: float | None = None,
+    def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | None = None,
                  widgets: bool = True, device: str = "cpu"):
         self.shot = shot
         self.trajectory = shot.trajectory
         self.times = np.asarray(shot.animation.frame_times, dtype=np.float64)
-        self.h = shot.step
+        self.step_s = shot.step_s
         self.device = device
         base = shot.settle_time()
         self._settle_map = np.broadcast_to(np.asarray(base, dtype=np.float64), (shot.rig.num_vertices,))
-        self.settle_time = float(self._settle_map.max())
+        self.settle_time_s = float(self._settle_map.max())
         self.damping_ratio = float(shot.dynamics["damping_ratio"])
         self._constraints = shot.constraints()
-        self.sigma = _initial_width(self._constraints)
-        self._sigma_set = False  # until the slider moves, every constraint keeps the shot's own width
+        self.width_s = _initial_width(self._constraints)
+        self._width_set = False  # until the slider moves, every constraint keeps the shot's own width
         self._rebuild_system()
+        window = window_s
         if window is None:
             w = shot.dynamics["window_s"]
             if w == "auto":
                 from ..window import automatic_window
 
-                w = automatic_window(self.system.model, self.trajectory, h=self.h).window_s
-            window = max(float(w), self.h)
-        self.window = float(window)
+                w = automatic_window(self.system, self.trajectory, step_s=self.step_s).window_s
+            window = max(float(w), self.step_s)
+        self.window_s = float(window)
         self.mode = "kd"
         self.frame = 0
         self.playing = False
@@ -107,15 +108,15 @@ class ShotViewer:
     def _rebuild_system(self) -> None:
         from ..dynamics import FaceSystem
 
-        scale = self.settle_time / float(self._settle_map.max())
-        model = self.shot.model(settle_time=self._settle_map * scale, damping_ratio=self.damping_ratio)
+        scale = self.settle_time_s / float(self._settle_map.max())
+        model = self.shot.model(settle_time_s=self._settle_map * scale, damping_ratio=self.damping_ratio)
         self.system = FaceSystem(model, device=self.device)
 
     def constraints(self) -> list:
         """The shot's constraints; once the width slider moved, all with the viewer's correction width σ."""
-        if not self._sigma_set:
+        if not self._width_set:
             return list(self._constraints)
-        return [with_width(c, self.sigma) for c in self._constraints]
+        return [with_width(c, self.width_s) for c in self._constraints]
 
     def state(self, frame: int | None = None, mode: str | None = None) -> np.ndarray:
         """Vertex positions (N, 3) [m] of ``frame`` in ``mode`` (default the displayed ones); sets ``last_ms``."""
@@ -127,7 +128,7 @@ class ShotViewer:
             return self.trajectory.positions([t])[0]
         traj = self.ikd.trajectory if (mode == "ikd" and self.ikd is not None) else self.trajectory
         t0 = time.perf_counter()
-        x = simulate_kd(self.system, traj, [t], self.window, h=self.h)[0]
+        x = simulate_kd(self.system, traj, [t], self.window_s, step_s=self.step_s)[0]
         self.last_ms = 1e3 * (time.perf_counter() - t0)
         return x
 
@@ -146,7 +147,7 @@ class ShotViewer:
         v = float(value)
         if not v > 0:
             raise KDInputError(f"settle time: expected positive seconds, got {value}")
-        self.settle_time = v
+        self.settle_time_s = v
         self._parameters_changed(rebuild=True)
 
     def set_damping_ratio(self, value) -> None:
@@ -159,11 +160,11 @@ class ShotViewer:
 
     def set_window(self, value) -> None:
         """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
-        window_steps(float(value), self.h)
-        self.window = float(value)
+        window_steps(float(value), self.step_s)
+        self.window_s = float(value)
         self._parameters_changed(rebuild=False)
 
-    def set_sigma(self, value) -> None:
+    def set_width(self, value) -> None:
         """Correction-width slider: σ [s] of every constraint's bell (takes effect at the next IKD solve).
 
         Until it is first set, each constraint keeps the width of its shot file (the slider starts at the first's).
@@ -171,8 +172,8 @@ class ShotViewer:
         v = float(value)
         if not v > 0:
             raise KDInputError(f"correction width: expected positive seconds, got {value}")
-        self.sigma = v
-        self._sigma_set = True
+        self.width_s = v
+        self._width_set = True
         self._parameters_changed(rebuild=False)
 
     def _parameters_changed(self, *, rebuild: bool) -> None:
@@ -201,11 +202,8 @@ class ShotViewer:
             self.ikd_message = "IKD: the shot has no constraints"
             self.update()
             return None
-        s = self.shot.solver
-        self.ikd = solve_ikd(self.system, self.trajectory, self.constraints(), window=self.window, h=self.h,
-                             update=s["update"], damping=float(s["damping"]), tolerance_m=float(s["tolerance_m"]),
-                             tolerance_mps=float(s["tolerance_mps"]), max_iterations=int(s["max_iterations"]),
-                             max_correction=float(s["max_correction_m"]))
+        self.ikd = solve_ikd(self.system, self.trajectory, self.constraints(), window_s=self.window_s,
+                             step_s=self.step_s, **self.shot.solver_options())
         self.ikd_stale = False
         r = self.ikd
         self.ikd_message = (f"IKD: {r.reason}, {r.iterations} sweeps, {r.wall_s:.2f} s, "
@@ -265,10 +263,10 @@ class ShotViewer:
                                                           pointa=(0.25, 0.08), pointb=(0.95, 0.08),
                                                           interaction_event="always", fmt="%.0f", style="modern",
                                                           title_height=0.02)
-            specs = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time, "settle time [s]"),
+            specs = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time_s, "settle time [s]"),
                      ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),
-                     ("window", self.set_window, (self.h, max(2.0, self.window)), self.window, "window [s]"),
-                     ("sigma", self.set_sigma, (0.05, 1.0), self.sigma, "correction width [s]")]
+                     ("window", self.set_window, (self.step_s, max(2.0, self.window_s)), self.window_s, "window [s]"),
+                     ("sigma", self.set_width, (0.05, 1.0), self.width_s, "correction width [s]")]
             for i, (key, cb, rng, val, title) in enumerate(specs):
                 y = 0.86 - 0.13 * i
                 self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
@@ -288,9 +286,9 @@ class ShotViewer:
         t = self.times[self.frame]
         out = []
         for c in self.constraints():
-            if abs(c.time - t) <= 0.5 * self.h + 1e-9:
+            if abs(c.time_s - t) <= 0.5 * self.step_s + 1e-9:
                 xp = self.state(max(self.frame - 1, 0)) if c.kind == "velocity" else None
-                out += constraint_markers(c, x, xp, h=self.h)
+                out += constraint_markers(c, x, xp, step_s=self.step_s)
         return out
 
     def update(self) -> None:
@@ -320,8 +318,8 @@ class ShotViewer:
             shown = "IKD (not solved: showing KD)"
         lines = [f"{self.shot.name}   frame {self.frame}/{n - 1}   t = {self.times[self.frame]:.2f} s   {shown}"
                  + ("   [playing]" if self.playing else ""),
-                 f"KD state: {self.last_ms:.1f} ms   window {self.window:.2f} s "
-                 f"({window_steps(self.window, self.h)} steps of {1e3 * self.h:.0f} ms)",
+                 f"KD state: {self.last_ms:.1f} ms   window {self.window_s:.2f} s "
+                 f"({window_steps(self.window_s, self.step_s)} steps of {1e3 * self.step_s:.0f} ms)",
                  self.ikd_message + ("  [stale: press i]" if self.ikd_stale else "")]
         return "\n".join(lines)
 
@@ -350,7 +348,7 @@ class ShotViewer:
         self.plotter.close()
 
 
-def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window=None) -> dict:
+def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
@@ -363,14 +361,14 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         raise KDInputError(f"--frame: {frame} is outside the shot's frames 0..{n - 1}")
     if mode not in MODES:
         raise KDInputError(f"--mode: expected one of {MODES}, got {mode!r}")
-    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window=window)
+    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window_s=window_s)
     try:
         if mode == "ikd":
             viewer.solve_ikd()
         viewer.set_mode(mode)
         viewer.set_frame(int(frame))
         summary = {"shot": shot.name, "frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
-                   "mode": viewer.mode, "window_s": viewer.window, "kd_state_ms": viewer.last_ms}
+                   "mode": viewer.mode, "window_s": viewer.window_s, "kd_state_ms": viewer.last_ms}
         if screenshot is not None:
             summary["screenshot"] = str(viewer.screenshot(screenshot))
         else:
@@ -384,7 +382,7 @@ def _view_command(args) -> dict:
     if args.screenshot is None and args.frame != 0:
         raise KDInputError("--frame: only meaningful with --screenshot FILE")
     return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
-                     size=(args.width, args.height), window=args.window)
+                     size=(args.width, args.height), window_s=args.window)
 
 
 def add_view_parser(subparsers) -> None:

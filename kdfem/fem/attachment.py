@@ -1,7 +1,8 @@
 """Attachment of the hat to the animated head: Dirichlet nodes and the head joint's rigid motion.
 
 The head joint's world transform G(t) (4×4, rest pose = identity) and its exact time derivatives come from the
-face rig's joint curves (:func:`kdfaces.rig.skeleton.joint_transforms`); attached nodes follow x_a(t) = G(t)·X_a.
+joint-angle trajectory θ_K(t) through FK (:func:`kdfaces.rig.joint_transforms`); attached nodes follow
+x_a(t) = G(t)·X_a.
 """
 
 from __future__ import annotations
@@ -11,35 +12,61 @@ import numpy as np
 from kdfaces.errors import KDInputError, check_finite
 from kdfaces.rig.skeleton import joint_transforms
 
-__all__ = ["HeadMotion", "head_motion", "attached_nodes", "rigid_velocity_field"]
+__all__ = ["HeadMotion", "head_motion", "joint_trajectory", "attached_nodes", "rigid_velocity_field"]
 
 
 class HeadMotion:
-    """Rigid motion of one joint of a rigged animation (default the ``head`` joint), over the shot [start, end].
+    """Rigid motion of one joint (default ``head``) of a joint-angle trajectory θ_K(t), over the shot [start, end].
 
-    Built from a :class:`kdfaces.motion.trajectory.KinematicTrajectory` (or any object with ``rig`` and ``animation``).
+    The head is read through the trajectory's ``evaluate`` (joint angles (T, J, 3) [rad]) and FK, so a corrected
+    trajectory θ_K + f moves the head, and everything attached to it, exactly as IKD intends.
     """
 
     def __init__(self, trajectory, *, joint: str = "head"):
-        rig, anim = getattr(trajectory, "rig", None), getattr(trajectory, "animation", None)
-        if rig is None or anim is None or rig.skeleton is None:
-            raise KDInputError("head motion: expected a kinematic trajectory of a rig with a skeleton")
-        self.skeleton = rig.skeleton
-        self.animation = anim
-        self.index = rig.skeleton.index(joint)
-        self.start, self.end = anim.start, anim.end
+        skeleton = getattr(trajectory, "skeleton", None)
+        if skeleton is None:
+            raise KDInputError("head motion: expected a joint-angle trajectory (with a skeleton)")
+        self.trajectory = trajectory
+        self.skeleton = skeleton
+        self.index = skeleton.index(joint)
+        self.start, self.end = trajectory.start, trajectory.end
 
     def transforms(self, times):
         """G, Ġ, G̈ of the joint at ``times`` (T,) [s] → three (T, 4, 4) arrays [-, 1/s, 1/s²] (translation in m)."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "head motion times")
-        G = joint_transforms(self.skeleton, self.animation.skeleton.joint_angles(self.skeleton, t, 2))
+        G = joint_transforms(self.skeleton, self.trajectory.evaluate(t, 2))
         return tuple(np.ascontiguousarray(g[:, self.index]) for g in G)
 
 
-def head_motion(trajectory) -> HeadMotion:
-    """``trajectory`` itself when it is a :class:`HeadMotion`, else the head joint's motion of that trajectory."""
-    return trajectory if isinstance(trajectory, HeadMotion) else HeadMotion(trajectory)
+def joint_trajectory(trajectory):
+    """The joint-angle trajectory that drives attached objects, from what a KD call was given.
+
+    A joint-angle trajectory (``state_shape`` (J, 3), e.g. :class:`kdfaces.motion.JointTrajectory` or a corrected
+    one) is used as it is. A face :class:`~kdfaces.motion.KinematicTrajectory` stands for its joints
+    (``trajectory.joints``). A corrected *face* trajectory is refused: its vertex correction cannot move the head,
+    so silently using the uncorrected joints would be a wrong answer.
+    """
+    skeleton = getattr(trajectory, "skeleton", None)
+    shape = tuple(getattr(trajectory, "state_shape", ()))
+    if skeleton is not None and shape == (len(skeleton.names), 3):
+        return trajectory
+    if getattr(trajectory, "correction", None) is not None or getattr(trajectory, "bump", None) is not None:
+        raise KDInputError("attached object: the trajectory carries a correction of the face's vertices, which "
+                           "cannot move the head joint; correct the joint trajectory (trajectory.joints) instead")
+    joints = getattr(trajectory, "joints", None)
+    if joints is None:
+        raise KDInputError("attached object: expected a joint-angle trajectory or a face trajectory of a rig with "
+                           "a skeleton")
+    return joints
+
+
+def head_motion(trajectory, *, joint: str = "head") -> HeadMotion:
+    """``trajectory`` itself when it is a :class:`HeadMotion`, else the motion of ``joint`` of its joint-angle
+    trajectory (:func:`joint_trajectory`)."""
+    if isinstance(trajectory, HeadMotion):
+        return trajectory
+    return HeadMotion(joint_trajectory(trajectory), joint=joint)
 
 
 def rigid_velocity_field(G: np.ndarray, dG: np.ndarray):

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.io.atomic import atomic_path
 
 from ..geometry.hat import HatParams, christmas_hat
@@ -23,18 +25,23 @@ __all__ = ["DEFAULT_MATERIAL", "DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_EDGE_LE
 #: A floppy knitted hat: E = 3 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
 DEFAULT_MATERIAL = Material(youngs=3.0e3)
 #: Rayleigh damping C = αM + βK: α [1/s] (relative to the head), β [s]; the tip swing decays within ~1 s.
-DEFAULT_ALPHA, DEFAULT_BETA = 1.0, 0.01
+DEFAULT_ALPHA, DEFAULT_BETA = defaults.RAYLEIGH_ALPHA, defaults.RAYLEIGH_BETA
 #: pytetwild target edge length / bbox diagonal and envelope: a coarse (~1k tet) simulation mesh.
-DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = 0.09, 0.004
+DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = defaults.HAT_EDGE_LENGTH_FAC, defaults.HAT_ENVELOPE_FAC
 
 
-def hat_tetmesh(*, edge_length_fac: float = 0.06, epsilon: float = 1e-3, coarsen: bool = False,
+@renamed_kwargs(epsilon="envelope_fac")
+def hat_tetmesh(*, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
+                envelope_fac: float = defaults.HAT_ENVELOPE_FAC, coarsen: bool = True,
                 params: HatParams | None = None, cache_dir=None):
     """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``)).
 
-    Defaults: pytetwild's tight envelope (a fine mesh, ~5k tets). :func:`default_hat_system` asks for a coarse
-    simulation mesh instead (loose envelope ``epsilon``, ``coarsen``) and embeds the fine surface in it.
+    ``edge_length_fac`` and ``envelope_fac``: pytetwild's target edge length and envelope relative to the surface's
+    bounding-box diagonal; with ``coarsen`` the defaults give the coarse (~1k tet) simulation mesh the demo hat
+    uses, in which the smooth render surface is embedded. (0.06, 1e-3, ``coarsen=False``) gives a fine ~5k-tet
+    mesh that follows the surface tightly.
     """
+    epsilon = envelope_fac
     p = params or HatParams()
     surf = christmas_hat(p)
     path = None
@@ -45,7 +52,7 @@ def hat_tetmesh(*, edge_length_fac: float = 0.06, epsilon: float = 1e-3, coarsen
             d = np.load(path)
             return surf, TetMesh(d["nodes"], d["tets"]), 0.0
     t0 = time.perf_counter()
-    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, epsilon=epsilon,
+    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, envelope_fac=epsilon,
                           coarsen=coarsen, where="hat")
     dt = time.perf_counter() - t0
     if path is not None:
@@ -54,13 +61,22 @@ def hat_tetmesh(*, edge_length_fac: float = 0.06, epsilon: float = 1e-3, coarsen
     return surf, mesh, dt
 
 
-def default_hat_system(rig, *, edge_length_fac: float = DEFAULT_EDGE_LENGTH_FAC, material: Material | None = None,
-                       alpha: float = DEFAULT_ALPHA, beta: float = DEFAULT_BETA, attach_distance: float = 0.02,
-                       cache_dir=None, device: str = "cpu", epsilon: float = DEFAULT_EPSILON, coarsen: bool = True,
-                       params: HatParams | None = None, threads: int = 1):
-    """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head."""
-    surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=epsilon, coarsen=coarsen, params=params,
-                                 cache_dir=cache_dir)
-    att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance)
-    model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, alpha=alpha, beta=beta, device=device)
+@renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta", attach_distance="attach_distance_m",
+                epsilon="envelope_fac")
+def default_hat_system(rig, *, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
+                       envelope_fac: float = defaults.HAT_ENVELOPE_FAC, coarsen: bool = True,
+                       material: Material | None = None, rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA,
+                       rayleigh_beta: float = defaults.RAYLEIGH_BETA, attach_distance_m: float = 0.02,
+                       cache_dir=None, device: str = "cpu", params: HatParams | None = None, threads: int = 1):
+    """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head.
+
+    Meshing as :func:`hat_tetmesh`; ``material`` (default :data:`DEFAULT_MATERIAL`), Rayleigh α [1/s], β [s];
+    nodes within ``attach_distance_m`` [m] of the head surface follow the head joint; ``threads`` step batch
+    members in parallel.
+    """
+    surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
+                                 params=params, cache_dir=cache_dir)
+    att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance_m)
+    model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, rayleigh_alpha=rayleigh_alpha,
+                     rayleigh_beta=rayleigh_beta, device=device)
     return HatSystem(model, embedding=embed_surface(mesh, surf.vertices), threads=threads), surf, dt

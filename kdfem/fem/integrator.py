@@ -78,7 +78,7 @@ class ImplicitEuler:
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
         self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
-        self.c_m, self.c_k = 1 + h * model.alpha, h * h + h * model.beta
+        self.c_m, self.c_k = 1 + h * model.rayleigh_alpha, h * h + h * model.rayleigh_beta
         self.M = sp.diags(self.c_m * m).tocsr()
         A = self.M + self.c_k * model.rest_stiffness()
         self.lus = [_factor_spd(A) for _ in range(self.threads)]  # one copy per thread
@@ -101,10 +101,11 @@ class ImplicitEuler:
         f, psi, damp, detF = md.step_terms(x1, v1, Rn)
         dv = v1[:, fr] - vn[:, fr]
         u = v1[:, fr] - (np.einsum("bij,bnj->bni", Aw, x1[:, fr]) + cw[:, None])
-        E = (0.5 * (m * dv * dv).sum(axis=(1, 2)) + psi + h * damp + 0.5 * h * md.alpha * (m * u * u).sum(axis=(1, 2))
+        alpha = md.rayleigh_alpha
+        E = (0.5 * (m * dv * dv).sum(axis=(1, 2)) + psi + h * damp + 0.5 * h * alpha * (m * u * u).sum(axis=(1, 2))
              - h * (m * v1[:, fr] * self.g).sum(axis=(1, 2)))
         uu = u - h * np.einsum("bji,bnj->bni", Aw, u)  # (I − hA)ᵀ u
-        r = m * dv - h * f[:, fr] + h * md.alpha * m * uu - h * m * self.g
+        r = m * dv - h * f[:, fr] + h * md.rayleigh_alpha * m * uu - h * m * self.g
         return E, r, detF.min(axis=1), np.abs(psi) + h * damp
 
     def _solve(self, lu, state, idx, r, R):

@@ -14,6 +14,8 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs, warn_renamed
 from kdfaces.errors import KDInputError
 
 from ..geometry.tetmesh import TetMesh
@@ -30,12 +32,14 @@ GRAVITY = (0.0, -9.81, 0.0)
 class FEMModel:
     """A tet mesh with material, Rayleigh damping C = αM + βK and Dirichlet (attached) nodes.
 
+    ``FEMModel(mesh, material, attached, rayleigh_alpha=1.0, rayleigh_beta=0.01)``.
+
     Attributes:
         mesh: rest nodes (N, 3) [m] and tets (T, 4).
         material: elastic material.
         attached: indices of nodes driven by the bone (Dirichlet), shape (A,) int64.
-        alpha: mass-proportional damping α [1/s] (acts on velocity relative to the bone's rigid motion).
-        beta: stiffness-proportional damping β [s].
+        rayleigh_alpha: mass-proportional damping α [1/s] (acts on velocity relative to the bone's rigid motion).
+        rayleigh_beta: stiffness-proportional damping β [s].
         gravity: (3,) [m/s²].
         device: Warp device for the per-tet kernels.
     """
@@ -43,8 +47,8 @@ class FEMModel:
     mesh: TetMesh
     material: Material
     attached: np.ndarray
-    alpha: float = 1.0
-    beta: float = 0.01
+    rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA
+    rayleigh_beta: float = defaults.RAYLEIGH_BETA
     gravity: tuple = GRAVITY
     device: str = "cpu"
     masses: np.ndarray = field(init=False)
@@ -55,8 +59,9 @@ class FEMModel:
         self.attached = np.unique(np.asarray(self.attached, dtype=np.int64))
         if len(self.attached) == 0 or self.attached.min() < 0 or self.attached.max() >= n:
             raise KDInputError(f"attached: expected node indices in [0, {n}), at least one")
-        if self.alpha < 0 or self.beta < 0:
-            raise KDInputError(f"damping: expected α ≥ 0 [1/s] and β ≥ 0 [s], got {self.alpha}, {self.beta}")
+        if not (self.rayleigh_alpha >= 0 and self.rayleigh_beta >= 0):
+            raise KDInputError(f"rayleigh_alpha, rayleigh_beta: expected α ≥ 0 [1/s] and β ≥ 0 [s], got "
+                               f"{self.rayleigh_alpha}, {self.rayleigh_beta}")
         mask = np.ones(n, dtype=bool)
         mask[self.attached] = False
         self.free = np.flatnonzero(mask)
@@ -153,7 +158,7 @@ class FEMModel:
         B, T, d = len(x), self.mesh.num_tets, self.device
         mu, lam, a = self.material.kernel_params
         lmu, llam = self.material.lame
-        beta = self.beta if damping else 0.0
+        beta = self.rayleigh_beta if damping else 0.0
         f = wp.zeros((B, self.mesh.num_nodes), dtype=wp.vec3d, device=d)
         energy = wp.zeros((B, T), dtype=wp.float64, device=d)
         damp = wp.zeros((B, T), dtype=wp.float64, device=d)
@@ -168,7 +173,22 @@ class FEMModel:
     def forces(self, x: np.ndarray, v: np.ndarray, *, damping: bool = True):
         """Elastic + β-damping nodal forces (B, N, 3) [N], elastic energy per member (B,) [J], min det F (B,);
         the damping is corotated by the tets' own rotations at ``x``."""
-        R = self.rotations(x)[0] if damping and self.beta > 0 else np.broadcast_to(np.eye(3), (len(x),
+        R = self.rotations(x)[0] if damping and self.rayleigh_beta > 0 else np.broadcast_to(np.eye(3), (len(x),
                                                                                            self.mesh.num_tets, 3, 3))
         f, e, _, detF = self.step_terms(x, v, np.ascontiguousarray(R), damping=damping)
         return f, e, detF.min(axis=1)
+
+    @property
+    def alpha(self) -> float:
+        """Deprecated name of :attr:`rayleigh_alpha`."""
+        warn_renamed("FEMModel", "alpha", "rayleigh_alpha")
+        return self.rayleigh_alpha
+
+    @property
+    def beta(self) -> float:
+        """Deprecated name of :attr:`rayleigh_beta`."""
+        warn_renamed("FEMModel", "beta", "rayleigh_beta")
+        return self.rayleigh_beta
+
+
+FEMModel.__init__ = renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta")(FEMModel.__init__)

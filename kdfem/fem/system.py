@@ -13,8 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kdfaces.deprecation import warn_renamed
+from kdfaces.rig.skeleton import joint_transforms
+
 from ..geometry.tetmesh import Embedding
-from .attachment import head_motion
+from .attachment import head_motion, joint_trajectory
 from .integrator import FEMState, ImplicitEuler, apply_frame, static_equilibrium
 from .model import FEMModel
 
@@ -26,44 +29,114 @@ class HatSystem:
     """A :class:`FEMModel` attached to the head joint of a face rig, as a KD system.
 
     ``tol`` [m]: Newton tolerance on the position update; ``threads``: batch members stepped in parallel threads.
-    ``trajectory`` arguments of the protocol methods are a :class:`kdfaces.motion.trajectory.KinematicTrajectory` of a
-    rig with a skeleton (or a :class:`kdfem.fem.attachment.HeadMotion`). ``observe`` returns node positions
-    (B, N, 3) [m]; :meth:`surface` maps them to the embedded render surface.
+    The ``trajectory`` of the protocol methods is the joint-angle trajectory θ_K(t) that moves the head (a
+    :class:`kdfaces.motion.JointTrajectory`, possibly corrected by IKD), or a face
+    :class:`kdfaces.motion.KinematicTrajectory` standing for its joints
+    (:func:`~kdfem.fem.attachment.joint_trajectory`).
+    ``observe`` returns node positions (B, N, 3) [m]; :meth:`surface` maps them to the embedded render surface.
     """
 
     model: FEMModel
     embedding: Embedding | None = None
     tol: float = 1e-6
     threads: int = 1
+    joint: str = "head"
 
     def __post_init__(self):
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
         self._steppers: dict[float, ImplicitEuler] = {}
 
-    def stepper(self, h: float) -> ImplicitEuler:
-        """The implicit-Euler stepper for step ``h`` [s] (its Newton matrix factored once and cached)."""
-        key = round(float(h), 12)
+    def stepper(self, step_s: float) -> ImplicitEuler:
+        """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
+        key = round(float(step_s), 12)
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, h, tol=self.tol, threads=self.threads)
+            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads)
         return self._steppers[key]
 
-    def rigid(self, trajectory, times) -> np.ndarray:
-        """The kinematic (rigidly carried) hat at ``times`` (T,) [s] → (T, N, 3) [m]."""
-        G, _, _ = head_motion(trajectory).transforms(times)
+    # --- KD protocol -------------------------------------------------------------------------------------------
+    def observe_kinematic(self, trajectory, times) -> np.ndarray:
+        """The kinematic (rigidly carried) hat at ``times`` (T,) [s] → (T, N, 3) [m]: the rest equilibrium moved
+        by the head joint."""
+        G, _, _ = head_motion(trajectory, joint=self.joint).transforms(times)
         return apply_frame(G, self.rest_equilibrium)
 
+    def rigid(self, trajectory, times) -> np.ndarray:
+        """Deprecated name of :meth:`observe_kinematic`."""
+        warn_renamed("HatSystem", "rigid", "observe_kinematic")
+        return self.observe_kinematic(trajectory, times)
+
     def initial_state(self, trajectory, times: np.ndarray) -> FEMState:
-        G, dG, _ = head_motion(trajectory).transforms(times)
+        """The rest equilibrium carried rigidly by the head at ``times`` (B,) [s], with the head's rigid velocity."""
+        G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(times)
         x = apply_frame(G, self.rest_equilibrium)
         v = apply_frame(dG, self.rest_equilibrium)  # Ġ·X: rotation rate times X plus translation rate
         return FEMState(x=x, v=v)
 
-    def step(self, state: FEMState, trajectory, times: np.ndarray, h: float) -> None:
-        G1, dG1, _ = head_motion(trajectory).transforms(np.asarray(times, dtype=np.float64) + h)
-        self.stepper(h).step(state, G1, dG1)
+    def step(self, state: FEMState, trajectory, times: np.ndarray, step_s: float) -> None:
+        """One implicit Euler step of ``step_s`` [s] for every member, attached nodes following the head."""
+        G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(np.asarray(times, dtype=np.float64)
+                                                                           + step_s)
+        self.stepper(step_s).step(state, G1, dG1)
 
     def observe(self, state: FEMState) -> np.ndarray:
+        """Node positions of every member (B, N, 3) [m]."""
         return state.x.copy()
+
+    def correction_jacobian(self, trajectory, time_s: float, x: np.ndarray, indices) -> np.ndarray:
+        """J = ∂p/∂θ (G, 3, J, 3) of points p = ``x[indices]`` (KD node positions [m]) fixed in the head frame
+        at their current position (paper §4.4), with respect to the joint angles θ of the trajectory at
+        ``time_s`` [s]: how IKD maps an error at the hat to a correction of the posture (eq. 5 through J⁺).
+
+        Central differences of FK (±1e-6 rad) over every angle; joints outside the head's chain give zero columns.
+        """
+        jt = joint_trajectory(trajectory)
+        skel = jt.skeleton
+        theta = jt.evaluate([time_s], 0)[0][0]  # (J, 3)
+        nj = len(skel.names)
+        eps = 1e-6
+        pert = np.repeat(theta[None], 2 * nj * 3, axis=0)
+        for k in range(nj * 3):
+            pert[2 * k, k // 3, k % 3] += eps
+            pert[2 * k + 1, k // 3, k % 3] -= eps
+        zero = np.zeros_like(pert)
+        Gp = joint_transforms(skel, (np.concatenate([theta[None], pert]), np.concatenate([zero[:1], zero]),
+                                     np.concatenate([zero[:1], zero])))[0][:, skel.index(self.joint)]
+        p = np.asarray(x, dtype=np.float64)[np.asarray(indices)]
+        inv = np.linalg.inv(Gp[0])
+        local = p @ inv[:3, :3].T + inv[:3, 3]  # (G, 3) in the head frame
+        moved = np.einsum("bij,nj->bni", Gp[1:, :3, :3], local) + Gp[1:, None, :3, 3]  # (2·3J, G, 3)
+        d = (moved[0::2] - moved[1::2]) / (2 * eps)  # (3J, G, 3)
+        return np.transpose(d, (1, 2, 0)).reshape(len(p), 3, nj, 3)
+
+    def automatic_window(self, trajectory, *, step_s: float | None = None, epsilon_m: float | None = None,
+                         times=None):
+        """The modal window of §5.3 for this hat under ``trajectory``'s head motion.
+
+        ω_max and v_max (eq. 30) are the largest angular and linear speed the head bone gains in one step of
+        ``step_s`` [s] (default the frame interval): max ‖ω̇‖·h and max ‖a‖·h of the head joint over ``times``
+        (default the step grid), the multi-dimensional analog of ẋ0 = ẍ_max·h (§5.2). ε defaults to
+        0.001·d·√N. Returns a :class:`kdfaces.window.WindowEstimate`.
+        """
+        from kdfaces.defaults import default_step
+        from kdfaces.window import WindowEstimate, grid_times
+
+        from ..modal.analysis import analyse_model
+
+        motion = head_motion(trajectory, joint=self.joint)
+        h = default_step(motion.trajectory, step_s)
+        t = grid_times(motion.trajectory, h) if times is None else np.asarray(times, dtype=np.float64)
+        G, dG, ddG = motion.transforms(t)
+        R, dR, ddR = G[:, :3, :3], dG[:, :3, :3], ddG[:, :3, :3]
+        W = ddR @ np.transpose(R, (0, 2, 1)) + dR @ np.transpose(dR, (0, 2, 1))  # d/dt (Ṙ Rᵀ)
+        wdot = 0.5 * np.stack([W[:, 2, 1] - W[:, 1, 2], W[:, 0, 2] - W[:, 2, 0], W[:, 1, 0] - W[:, 0, 1]], axis=1)
+        origin = motion.skeleton.positions[motion.index]
+        acc = ddG[:, :3, :3] @ origin + ddG[:, :3, 3]
+        omega_max = float(np.linalg.norm(wdot, axis=1).max()) * h
+        a_max = float(np.linalg.norm(acc, axis=1).max())
+        an = analyse_model(self.model, origin, omega_max=omega_max, v_max=a_max * h, epsilon_m=epsilon_m)
+        w = an.window
+        return WindowEstimate(window_s=max(float(w.window_s), h), epsilon_m=float(w.epsilon_m),
+                              acceleration_max=a_max, initial_speed=float(w.qdot1), regime=str(w.regime))
 
     def surface(self, x: np.ndarray) -> np.ndarray:
         """Render-surface positions (..., V, 3) [m] from node positions (..., N, 3) (needs ``embedding``)."""

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError, check_finite
 
 __all__ = ["TetMesh", "Embedding", "tetrahedralize", "tet_quality", "embed_surface", "load_surface",
@@ -144,27 +145,57 @@ def _self_intersects(m) -> bool:
     return bool((inside & ~touch).any())
 
 
+_PYTETWILD = """
+import sys
+import numpy as np
+import pytetwild
+d = np.load("in.npz")
+nodes, tets = pytetwild.tetrahedralize(d["v"], d["f"].astype(np.int32), edge_length_fac=float(d["edge"]),
+                                       epsilon=float(d["envelope"]), coarsen=bool(d["coarsen"]),
+                                       optimize=bool(d["optimize"]), quiet=True, num_threads=1)
+np.savez("out.npz", nodes=np.asarray(nodes, dtype=np.float64), tets=np.asarray(tets, dtype=np.int64))
+"""
+
+
+def _pytetwild(v: np.ndarray, f: np.ndarray, *, edge_length_fac: float, envelope_fac: float, coarsen: bool,
+               optimize: bool, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """pytetwild in a child process inside a private temporary folder: it writes ``__tracked_surface.stl`` into
+    its working directory, and a library call must leave the caller's folder (and process state) alone."""
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="kdfem-tetwild-") as tmp:
+        np.savez(Path(tmp) / "in.npz", v=v, f=f, edge=edge_length_fac, envelope=envelope_fac, coarsen=coarsen,
+                 optimize=optimize)
+        proc = subprocess.run([sys.executable, "-c", _PYTETWILD], cwd=tmp, capture_output=True, text=True)
+        if proc.returncode != 0 or not (Path(tmp) / "out.npz").exists():
+            last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+            raise KDInputError(f"{where}: pytetwild failed to tetrahedralise the surface ({last})")
+        d = np.load(Path(tmp) / "out.npz")
+        return d["nodes"], d["tets"]
+
+
+@renamed_kwargs(epsilon="envelope_fac")
 def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str = "surface",
-                   optimize: bool = True, epsilon: float = 1e-3, coarsen: bool = False) -> TetMesh:
+                   optimize: bool = True, envelope_fac: float = 1e-3, coarsen: bool = False) -> TetMesh:
     """Tetrahedralise a closed surface (V, 3) [m], (F, 3) with pytetwild; orientation fixed, zero volumes rejected.
 
     ``edge_length_fac`` is the target edge length as a fraction of the bounding-box diagonal (smaller → more tets);
-    ``epsilon`` the envelope (allowed surface deviation) as a fraction of the diagonal: a thin-walled surface needs
-    small tets to stay within a tight envelope, so a coarse simulation mesh wants a loose envelope and ``coarsen``
-    (the fine surface is then embedded, :func:`embed_surface`, like the paper's coarse cubes, Fig. 6).
+    ``envelope_fac`` the envelope (allowed surface deviation) as a fraction of the diagonal: a thin-walled surface
+    needs small tets to stay within a tight envelope, so a coarse simulation mesh wants a loose envelope and
+    ``coarsen`` (the fine surface is then embedded, :func:`embed_surface`, like the paper's coarse cubes, Fig. 6).
+    pytetwild runs in a child process in a temporary folder, so nothing is written where the caller works.
     """
-    import pytetwild
-
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if not (0 < edge_length_fac < 1):
         raise KDInputError(f"edge_length_fac: expected a fraction in (0, 1), got {edge_length_fac}")
-    if not (0 < epsilon < 0.1):
-        raise KDInputError(f"epsilon: expected a fraction in (0, 0.1), got {epsilon}")
+    if not (0 < envelope_fac < 0.1):
+        raise KDInputError(f"envelope_fac: expected a fraction in (0, 0.1), got {envelope_fac}")
     _check_surface(v, f, where)
-    nodes, tets = pytetwild.tetrahedralize(v, f.astype(np.int32), edge_length_fac=edge_length_fac,
-                                           epsilon=epsilon, coarsen=coarsen, optimize=optimize, quiet=True,
-                                           num_threads=1)
+    nodes, tets = _pytetwild(v, f, edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
+                             optimize=optimize, where=where)
     if len(tets) == 0:
         raise KDInputError(f"{where}: pytetwild produced no tetrahedra")
     used = np.unique(tets)

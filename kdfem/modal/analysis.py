@@ -8,7 +8,8 @@ k_i = U_iᵀKU_i, c_i = α m_i + β k_i, γ_i = −c_i/2m_i (eq. 26), ω_i = √
 A spatial velocity ϕ = (ω, v) of the bone gives node velocities u̇ = Γϕ with Γ rows (−[r_i]×, I) (eq. 29), r_i
 the node relative to the bone origin. The modal velocity it excites is the M-orthogonal projection
 q̇_i = U_iᵀ M Γ ϕ / m_i (for a complete M-orthogonal basis this is the row of U⁻¹Γ the paper uses). With
-h = U_1ᵀMΓ/m_1 (6,), q̇_1(0) = max|h_ω|·ω_max + max|h_v|·v_max (eq. 30); A_1 = q̇_1(0)/ω_1 (eq. 28) and the window
+the activation h = U_1ᵀMΓ/m_1 (6,) (``activation``),
+q̇_1(0) = max|h_ω|·ω_max + max|h_v|·v_max (eq. 30); A_1 = q̇_1(0)/ω_1 (eq. 28) and the window
 is where the envelope A_1 e^{γ_1 δ} meets ε = 0.001·d·√N — or the over/critically damped branches of §5.2
 (:func:`kdfaces.window.window_1d`, the same code the faces use).
 """
@@ -21,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError
 from kdfaces.window import damping_regime, window_1d
 
@@ -67,7 +69,8 @@ class ModalBasis:
         return [str(damping_regime(k / m, c / m)) for m, k, c in zip(self.mass, self.stiffness, self.damping)]
 
 
-def modal_basis(K, M, *, count: int = 6, alpha: float = 0.0, beta: float = 0.0) -> ModalBasis:
+@renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta")
+def modal_basis(K, M, *, count: int = 6, rayleigh_alpha: float = 0.0, rayleigh_beta: float = 0.0) -> ModalBasis:
     """Lowest ``count`` modes of K u = λ M u (K (d, d) stiffness [N/m], M (d, d) mass [kg], attached DOFs removed).
 
     Uses ``eigsh`` in shift-invert mode at σ = 0 (K must be positive definite: at least one attached node).
@@ -79,8 +82,9 @@ def modal_basis(K, M, *, count: int = 6, alpha: float = 0.0, beta: float = 0.0) 
         raise KDInputError(f"modal analysis: K {K.shape} and M {M.shape} must be square and the same size")
     if d == 0:
         raise KDInputError("modal analysis: no free degrees of freedom (every node is attached)")
-    if alpha < 0 or beta < 0:
-        raise KDInputError(f"Rayleigh damping: expected α, β ≥ 0, got {alpha}, {beta}")
+    alpha, beta = rayleigh_alpha, rayleigh_beta
+    if not (alpha >= 0 and beta >= 0):
+        raise KDInputError(f"rayleigh_alpha, rayleigh_beta: expected α, β ≥ 0, got {alpha}, {beta}")
     r = min(count, d)
     try:
         if d <= max(64, 3 * r):
@@ -124,14 +128,16 @@ def gamma_matrix(points, origin) -> np.ndarray:
 
 
 def modal_activation(basis: ModalBasis, M, Gamma, mode: int = 0) -> np.ndarray:
-    """h (6,): the modal velocity q̇_mode per unit spatial velocity, U_iᵀ M Γ / m_i (M-orthogonal projection)."""
+    """The activation h (6,) (the paper's top row of U⁻¹Γ): the modal velocity q̇_mode per unit spatial velocity,
+    U_iᵀ M Γ / m_i (M-orthogonal projection)."""
     U = basis.vectors[:, mode]
     return (U @ (M @ Gamma)) / basis.mass[mode]
 
 
-def worst_case_spatial_velocity(h, *, omega_max: float, v_max: float) -> np.ndarray:
-    """The ϕ = (ω, v) with |ω| = ω_max and |v| = v_max along the axes that excite mode 1 most (eq. 30)."""
-    h = np.asarray(h, dtype=np.float64)
+def worst_case_spatial_velocity(activation, *, omega_max: float, v_max: float) -> np.ndarray:
+    """The ϕ = (ω, v) with |ω| = ω_max and |v| = v_max along the axes that excite mode 1 most (eq. 30), for the
+    mode's ``activation`` (6,)."""
+    h = np.asarray(activation, dtype=np.float64)
     phi = np.zeros(6)
     a, b = int(np.argmax(np.abs(h[:3]))), 3 + int(np.argmax(np.abs(h[3:])))
     phi[a] = omega_max * np.sign(h[a] or 1.0)
@@ -155,25 +161,28 @@ class ModalWindow:
     """The KD window of the first mode (§5.3).
 
     Attributes:
-        delta_s: δ [s]; epsilon_m: ε [m]; qdot1: q̇_1(0) [m/s]; amplitude: A_1 = q̇_1(0)/ω_1 [m] (underdamped);
-        h_omega_max [m·s/rad → m/s per rad/s], h_v_max [1]: max |h| over the angular / linear components;
-        regime: damping regime of mode 1; h: the full activation vector (6,).
+        window_s: δ [s]; epsilon_m: ε [m]; qdot1: q̇_1(0) [m/s]; amplitude: A_1 = q̇_1(0)/ω_1 [m] (underdamped);
+        h_omega_max [m/s per rad/s], h_v_max [1]: the paper's h_ωmax, h_vmax, max |activation| over its angular /
+        linear components; regime: damping regime of mode 1; activation: the full activation vector h (6,).
     """
 
-    delta_s: float
+    window_s: float
     epsilon_m: float
     qdot1: float
     amplitude: float
     h_omega_max: float
     h_v_max: float
     regime: str
-    h: np.ndarray
+    activation: np.ndarray
 
 
-def modal_window(basis: ModalBasis, h, *, epsilon: float, omega_max: float = 4.0, v_max: float = 2.0
+@renamed_kwargs(epsilon="epsilon_m")
+def modal_window(basis: ModalBasis, activation, *, epsilon_m: float, omega_max: float = 4.0, v_max: float = 2.0
                  ) -> ModalWindow:
-    """δ from mode 1: q̇_1(0) = h_ωmax·ω_max + h_vmax·v_max (eq. 30), then the §5.2 branch of its regime."""
-    h = np.asarray(h, dtype=np.float64)
+    """δ from mode 1: q̇_1(0) = h_ωmax·ω_max + h_vmax·v_max (eq. 30) for its ``activation`` h (6,), bone speeds
+    ``omega_max`` [rad/s] and ``v_max`` [m/s], then the §5.2 branch of its regime for ``epsilon_m`` [m]."""
+    h = np.asarray(activation, dtype=np.float64)
+    epsilon = epsilon_m
     if not (omega_max >= 0 and v_max >= 0):
         raise KDInputError(f"bone speeds: expected ω_max, v_max ≥ 0, got {omega_max}, {v_max}")
     m, k, c = basis.mass[0], basis.stiffness[0], basis.damping[0]
@@ -181,11 +190,11 @@ def modal_window(basis: ModalBasis, h, *, epsilon: float, omega_max: float = 4.0
         raise KDInputError("modal window: mode 1 is undamped (α = β = 0), so it never settles; set Rayleigh α or β")
     h_w, h_v = float(np.abs(h[:3]).max()), float(np.abs(h[3:]).max())
     qdot = h_w * omega_max + h_v * v_max
-    delta = window_1d(qdot, k / m, c / m, epsilon=epsilon)
+    delta = window_1d(qdot, k / m, c / m, epsilon_m=epsilon)
     omega1 = float(basis.omega[0])
-    return ModalWindow(delta_s=float(delta), epsilon_m=float(epsilon), qdot1=qdot,
+    return ModalWindow(window_s=float(delta), epsilon_m=float(epsilon), qdot1=qdot,
                        amplitude=qdot / omega1 if omega1 > 0 else float("nan"), h_omega_max=h_w, h_v_max=h_v,
-                       regime=basis.regimes[0], h=h)
+                       regime=basis.regimes[0], activation=h)
 
 
 @dataclass(frozen=True)
@@ -211,18 +220,20 @@ class ModalAnalysis:
 
 
 def analyse_model(model, origin, *, count: int = 6, omega_max: float = 4.0, v_max: float = 2.0,
-                  G_rest: np.ndarray | None = None) -> ModalAnalysis:
+                  G_rest: np.ndarray | None = None, epsilon_m: float | None = None) -> ModalAnalysis:
     """§5.3 for a :class:`kdfem.fem.model.FEMModel`: K at rest and lumped M with the attached DOFs removed, the lowest
     ``count`` modes, Γ of the free nodes about the bone ``origin`` (3,) [m] (bone-frame coordinates; ``G_rest``
-    (4, 4): the bone's rest world transform, default identity), h, q̇_1(0) (eq. 30), ε = 0.001·d·√N and δ."""
+    (4, 4): the bone's rest world transform, default identity), h, q̇_1(0) (eq. 30), ε = 0.001·d·√N (or
+    ``epsilon_m`` [m]) and δ."""
     K = model.rest_stiffness()
     M = sp.diags(model.free_masses)
-    basis = modal_basis(K, M, count=count, alpha=model.alpha, beta=model.beta)
+    basis = modal_basis(K, M, count=count, rayleigh_alpha=model.rayleigh_alpha,
+                        rayleigh_beta=model.rayleigh_beta)
     nodes = model.nodes_in_frame(G_rest)
     Gamma = gamma_matrix(nodes[model.free], origin)
     h = modal_activation(basis, M, Gamma)
-    eps = perceptual_epsilon(nodes)
-    win = modal_window(basis, h, epsilon=eps, omega_max=omega_max, v_max=v_max)
+    eps = perceptual_epsilon(nodes) if epsilon_m is None else float(epsilon_m)
+    win = modal_window(basis, h, epsilon_m=eps, omega_max=omega_max, v_max=v_max)
     phi = worst_case_spatial_velocity(h, omega_max=omega_max, v_max=v_max)
     return ModalAnalysis(basis=basis, K=sp.csr_matrix(K), M=M, Gamma=Gamma, phi=phi, window=win,
                          diameter_m=object_diameter(nodes), nodes=model.mesh.num_nodes, tets=model.mesh.num_tets,

@@ -102,12 +102,12 @@ def envelope_figure(path, window, basis, linear, *, nonlinear=None, settle_linea
         resp, scale, label = nonlinear
         ax.semilogy(resp.times, np.maximum(resp.norm / scale, 1e-9), color="#d62728", lw=1, label=label)
     ax.axhline(window.epsilon_m, color="#2ca02c", ls="--", label=f"ε = {window.epsilon_m * 1e3:.1f} mm")
-    ax.axvline(window.delta_s, color="k", ls="--", lw=1, label=f"predicted δ = {window.delta_s:.3f} s")
+    ax.axvline(window.window_s, color="k", ls="--", lw=1, label=f"predicted δ = {window.window_s:.3f} s")
     if settle_linear is not None and np.isfinite(settle_linear):
         ax.axvline(settle_linear, color="#1f77b4", ls="-.", lw=1, label=f"measured settle = {settle_linear:.3f} s")
     top = max(float(np.nanmax(linear.norm)), window.amplitude if np.isfinite(window.amplitude) else 0.0)
     ax.set_ylim(window.epsilon_m * 1e-2, 2 * top)
-    ax.set_xlim(0, min(t[-1], 2.5 * window.delta_s))
+    ax.set_xlim(0, min(t[-1], 2.5 * window.window_s))
     ax.set_xlabel("time after the worst-case bone velocity jump [s]")
     ax.set_ylabel("‖u‖ over all free nodes [m]")
     ax.set_title("Window check: the object settles below ε at δ")
@@ -161,7 +161,7 @@ def write_report(path, result: dict, *, figures: dict, notes: dict) -> Path:
         "",
         "## The window",
         "",
-        f"**δ = {r['delta_s']:.3f} s.** A KD state at time t is simulated from the kinematic state at t − δ. δ is "
+        f"**δ = {r['window_s']:.3f} s.** A KD state at time t is simulated from the kinematic state at t − δ. δ is "
         "how long this object needs, after the hardest kick the animation can give it (the head suddenly moving at "
         f"ω_max = {notes['omega_max']:g} rad/s and v_max = {notes['v_max']:g} m/s), before every node is back within "
         f"0.1 % of the object's size of where it would be without the kick (ε = {r['epsilon_m'] * 1e3:.1f} mm over "
@@ -187,7 +187,7 @@ def write_report(path, result: dict, *, figures: dict, notes: dict) -> Path:
             ("regime of mode 1", r["regime"]),
             ("h_ωmax, h_vmax", f"{r['h_omega_max']:.4g} m/rad, {r['h_v_max']:.4g}"),
             ("q̇₁(0) (eq. 30)", f"{r['qdot1']:.4g} m/s"),
-            ("predicted δ", f"{r['delta_s']:.4f} s"),
+            ("predicted δ", f"{r['window_s']:.4f} s"),
             ("verified settle (linear, all DOFs)", f"{r['verified_settle_s']:.4f} s"),
             ("predicted / verified", f"{ratio:.4f}"),
         ]),
@@ -224,7 +224,7 @@ def write_report(path, result: dict, *, figures: dict, notes: dict) -> Path:
 def _linear_note(run) -> str:
     e, w = run.extra, run.analysis.window
     return (f"The slowest mode's own envelope, measured in that simulation, reaches ε at "
-            f"{e['mode1_envelope_settle_s']:.3f} s (the prediction's {w.delta_s:.3f} s: the Γ projection and the "
+            f"{e['mode1_envelope_settle_s']:.3f} s (the prediction's {w.window_s:.3f} s: the Γ projection and the "
             f"single-mode formula agree); what the other modes add at δ is {e['truncation_rest_at_delta_m'] * 1e3:.2f} "
             f"mm, against ε = {w.epsilon_m * 1e3:.1f} mm. The measured ‖u‖ can cross ε up to half a period "
             f"({0.5 / run.result['mode_hz'][0]:.3f} s) before δ, because it oscillates under the envelope. The kick "
@@ -236,7 +236,7 @@ def _nonlinear_note(run) -> str:
     if nl is None:
         return "The nonlinear FEM check was not run (`--no-nonlinear`)."
     w = run.analysis.window
-    parts = [f"**The nonlinear FEM.** The simulator's backward Euler (step {nl['h_s'] * 1e3:.2f} ms = T₁/40) damps "
+    parts = [f"**The nonlinear FEM.** The simulator's backward Euler (step {nl['step_s'] * 1e3:.2f} ms = T₁/40) damps "
              f"mode 1 numerically: its decay rate is {nl['gamma1_backward_euler']:.2f} 1/s instead of "
              f"{run.result['gamma1']:.2f} 1/s, so for that integrator the same kick settles by "
              f"{nl['delta_backward_euler_s']:.3f} s (predicted with the discrete rate) and the linear system stepped "
@@ -247,9 +247,9 @@ def _nonlinear_note(run) -> str:
             parts.append(f"With {label} the nonlinear simulation failed: {r['error']}.")
         else:
             parts.append(f"With {label} (largest node displacement {r['max_node_m'] * 1e3:.1f} mm) the nonlinear FEM "
-                         f"settles at {r['settle_s']:.3f} s: {w.delta_s / r['settle_s']:.2f}× shorter than the "
+                         f"settles at {r['settle_s']:.3f} s: {w.window_s / r['settle_s']:.2f}× shorter than the "
                          "predicted δ, so the linear prediction is conservative for it by "
-                         f"{(w.delta_s - r['settle_s']) * 1e3:.0f} ms.")
+                         f"{(w.window_s - r['settle_s']) * 1e3:.0f} ms.")
     return " ".join(parts)
 
 
@@ -261,8 +261,8 @@ def _sweep_note(run) -> str:
         return f"The KD-vs-full sweep over the demo animation failed: {s['error']}."
     ws = sorted(s["errors"])
     worst = ", ".join(f"δ = {w:.2f} s: {s['errors'][w].max() * 1e3:.1f} mm" for w in ws)
-    return (f"KD sweep over the demo animation (every {s['stride']}th frame, step {s['h'] * 1e3:g} ms, the hat under "
-            f"gravity; error = ‖x_KD − x_full‖ over all nodes). Largest error per window: {worst}; "
+    return (f"KD sweep over the demo animation (every {s['stride']}th frame, step {s['step_s'] * 1e3:g} ms, the hat "
+            f"under gravity; error = ‖x_KD − x_full‖ over all nodes). Largest error per window: {worst}; "
             f"ε = {run.result['epsilon_m'] * 1e3:.1f} mm. The demo's head accelerations are far below the worst-case "
             "kick, so the error falls below ε at windows shorter than δ.")
 
@@ -284,7 +284,7 @@ def write_all(out, run, *, mesh, surf_faces, source: str, attachment: str, omega
     s = run.extra.get("sweep")
     if s and "error" not in s:
         files.append(kd_error_figure(out / "kd_error_vs_window.png", s["times"], s["errors"], s["deviation"],
-                                     delta=an.window.delta_s, epsilon=an.window.epsilon_m))
+                                     delta=an.window.window_s, epsilon=an.window.epsilon_m))
         figs["kd_error"] = "kd_error_vs_window.png"
     notes = {"source": source, "attachment": attachment, "omega_max": omega_max, "v_max": v_max,
              "linear": _linear_note(run), "nonlinear": _nonlinear_note(run), "sweep": _sweep_note(run)}

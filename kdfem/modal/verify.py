@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError
 
 __all__ = ["Response", "linear_response", "settle_time", "backward_euler_mode", "nonlinear_response",
@@ -32,7 +33,7 @@ __all__ = ["Response", "linear_response", "settle_time", "backward_euler_mode", 
 
 @dataclass(frozen=True)
 class Response:
-    """A free response: ``times`` (S,) [s], ‖u‖ (S,) [m] (Euclidean over all free DOFs), ``h`` the step [s],
+    """A free response: ``times`` (S,) [s], ‖u‖ (S,) [m] (Euclidean over all free DOFs), ``step_s`` the step [s],
     ``max_node_m`` the largest node displacement over the run [m]. When a mode-1 basis was given: the mode-1
     coordinate's measured envelope √(q₁² + (q̇₁ − γ₁q₁)²/ω₁²) (S,) [m] with q₁ = U₁ᵀMu/m₁ (= A₁e^{γ₁t} exactly
     when the projection of §5.3 is right; NaN for a non-underdamped mode 1) and the rest ‖u − U₁q₁‖ (S,) [m] (what
@@ -42,7 +43,7 @@ class Response:
     norm: np.ndarray
     envelope: np.ndarray
     residual: np.ndarray
-    h: float
+    step_s: float
     max_node_m: float
 
 
@@ -64,23 +65,26 @@ def _mode1(U, V, M, basis):
     return env, rest
 
 
-def linear_response(K, M, v0, *, alpha: float, beta: float, h: float, t_end: float, basis=None,
+@renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta", h="step_s", t_end="end_s")
+def linear_response(K, M, v0, *, rayleigh_alpha: float, rayleigh_beta: float, step_s: float, end_s: float, basis=None,
                     scheme: str = "newmark", progress=None) -> Response:
     """M ü + (αM + βK) u̇ + K u = 0 from u = 0, u̇ = ``v0`` (d,) [m/s] with Newmark average acceleration.
 
-    K (d, d) [N/m], M (d, d) [kg] sparse; ``h`` [s]; ``t_end`` [s]. (M + h/2 C + h²/4 K) is factored once (splu).
+    K (d, d) [N/m], M (d, d) [kg] sparse; Rayleigh ``rayleigh_alpha`` [1/s], ``rayleigh_beta`` [s]; step
+    ``step_s`` [s] up to ``end_s`` [s]. (M + h/2 C + h²/4 K) is factored once (splu).
     ``basis``: a :class:`kdfem.modal.ModalBasis` for the mode-1 envelope. ``progress``: callable(fraction) or None.
     ``scheme="backward-euler"`` steps (M + hC + h²K) v⁺ = M v − h K u instead (the FEM integrator's scheme on the
     linear system), to separate its numerical damping from the material non-linearity.
     """
+    h, t_end = step_s, end_s
     K = sp.csr_matrix(K)
     M = sp.csr_matrix(M)
-    C = alpha * M + beta * K
+    C = rayleigh_alpha * M + rayleigh_beta * K
     v = np.asarray(v0, dtype=np.float64).copy()
     if v.shape != (K.shape[0],):
         raise KDInputError(f"initial velocity: expected shape ({K.shape[0]},), got {v.shape}")
     if not (h > 0 and t_end > 0):
-        raise KDInputError(f"linear response: expected positive step and horizon, got h={h}, t_end={t_end}")
+        raise KDInputError(f"linear response: expected positive step_s and end_s, got {h}, {t_end}")
     n = int(np.ceil(t_end / h))
     if scheme not in ("newmark", "backward-euler"):
         raise KDInputError(f"scheme: expected 'newmark' or 'backward-euler', got {scheme!r}")
@@ -105,13 +109,15 @@ def linear_response(K, M, v0, *, alpha: float, beta: float, h: float, t_end: flo
         if progress is not None and s % 50 == 0:
             progress(s / n)
     env, rest = _mode1(U, V, M, basis)
-    return Response(times=h * np.arange(n + 1), norm=np.linalg.norm(U, axis=1), envelope=env, residual=rest, h=h,
+    return Response(times=h * np.arange(n + 1), norm=np.linalg.norm(U, axis=1), envelope=env, residual=rest, step_s=h,
                     max_node_m=float(np.linalg.norm(U.reshape(n + 1, -1, 3), axis=2).max()))
 
 
-def settle_time(times, norm, epsilon: float) -> float:
+@renamed_kwargs(epsilon="epsilon_m")
+def settle_time(times, norm, epsilon_m: float) -> float:
     """The time [s] after which ``norm`` (S,) stays below ``epsilon`` [m] (linear interpolation of the last
     crossing); 0 if it never reaches ε; ``inf`` if it is still above ε at the end of the record."""
+    epsilon = epsilon_m
     t, x = np.asarray(times, dtype=np.float64), np.asarray(norm, dtype=np.float64)
     above = np.flatnonzero(x >= epsilon)
     if len(above) == 0:
@@ -122,25 +128,30 @@ def settle_time(times, norm, epsilon: float) -> float:
     return float(t[i] + (t[i + 1] - t[i]) * (x[i] - epsilon) / (x[i] - x[i + 1]))
 
 
-def backward_euler_mode(k_over_m: float, c_over_m: float, h: float) -> tuple[float, float]:
+def backward_euler_mode(k_over_m: float, c_over_m: float, step_s: float) -> tuple[float, float]:
     """(γ_BE [1/s], ω_BE [rad/s]) of the oscillator q̈ + c q̇ + k q = 0 stepped by backward Euler with step h:
-    the discrete eigenvalue z of (q, q̇)ₙ₊₁ = A⁻¹(q, q̇)ₙ, A = [[1, −h], [hk, 1 + hc]], is e^{(γ_BE ± iω_BE)h}."""
+    the discrete eigenvalue z of (q, q̇)ₙ₊₁ = A⁻¹(q, q̇)ₙ, A = [[1, −h], [hk, 1 + hc]], is e^{(γ_BE ± iω_BE)h}
+    (h = ``step_s`` [s])."""
+    h = step_s
     A = np.array([[1.0, -h], [h * k_over_m, 1.0 + h * c_over_m]])
     z = np.linalg.eigvals(np.linalg.inv(A))
     z = z[np.argmax(np.abs(z))]
     return float(np.log(np.abs(z)) / h), float(abs(np.angle(z)) / h)
 
 
-def nonlinear_response(model, v0, *, h: float, t_end: float, tol: float = 1e-6, progress=None) -> Response:
+@renamed_kwargs(h="step_s", t_end="end_s")
+def nonlinear_response(model, v0, *, step_s: float, end_s: float, tol: float = 1e-6, progress=None) -> Response:
     """The FEM ``model`` (a :class:`kdfem.fem.model.FEMModel`; gravity switched off here) with the bone fixed at rest,
     the free nodes starting at rest positions with velocity ``v0`` (3F,) [m/s] → ‖x − X‖ over free DOFs per step.
 
-    Stepped by :class:`kdfem.fem.integrator.ImplicitEuler` (backward Euler, Newton to ``tol`` [m]); ``h`` [s]."""
+    Stepped by :class:`kdfem.fem.integrator.ImplicitEuler` (backward Euler, Newton to ``tol`` [m]), step ``step_s``
+    [s] up to ``end_s`` [s]."""
+    h, t_end = step_s, end_s
     from ..fem.integrator import FEMState, ImplicitEuler
     from ..fem.model import FEMModel
 
-    md = FEMModel(model.mesh, model.material, model.attached, alpha=model.alpha, beta=model.beta,
-                  gravity=(0.0, 0.0, 0.0), device=model.device)
+    md = FEMModel(model.mesh, model.material, model.attached, rayleigh_alpha=model.rayleigh_alpha,
+                  rayleigh_beta=model.rayleigh_beta, gravity=(0.0, 0.0, 0.0), device=model.device)
     X = md.mesh.nodes
     v = np.zeros((1, *X.shape))
     v[0, md.free] = np.asarray(v0, dtype=np.float64).reshape(-1, 3)
@@ -157,21 +168,22 @@ def nonlinear_response(model, v0, *, h: float, t_end: float, tol: float = 1e-6, 
         if progress is not None and s % 10 == 0:
             progress(s / n)
     nan = np.full(n + 1, np.nan)
-    return Response(times=h * np.arange(n + 1), norm=norms, envelope=nan, residual=nan, h=h, max_node_m=peak)
+    return Response(times=h * np.arange(n + 1), norm=norms, envelope=nan, residual=nan, step_s=h, max_node_m=peak)
 
 
-def kd_error_sweep(system, trajectory, times, windows, *, h: float) -> tuple[np.ndarray, dict]:
+@renamed_kwargs(h="step_s")
+def kd_error_sweep(system, trajectory, times, windows, *, step_s: float) -> tuple[np.ndarray, dict]:
     """KD-vs-full error over an animation (Fig. 10): the full simulation from the shot start at ``times`` (T,) [s]
     and, per window δ [s] in ``windows``, ‖x_KD − x_full‖ (T,) [m] (Euclidean over all nodes, the norm ε uses).
 
     Returns (the full simulation's deviation from the rigidly carried hat ‖x_full − x_rigid‖ (T,) [m], errors)."""
     from kdfaces.kd import simulate_full, simulate_kd
 
-    full = simulate_full(system, trajectory, times, h=h)
-    rigid = system.rigid(trajectory, times)
+    full = simulate_full(system, trajectory, times, step_s=step_s)
+    rigid = system.observe_kinematic(trajectory, times)
     dev = np.linalg.norm((full - rigid).reshape(len(times), -1), axis=1)
     errors = {}
     for w in windows:
-        kd = simulate_kd(system, trajectory, times, float(w), h=h)
+        kd = simulate_kd(system, trajectory, times, float(w), step_s=step_s)
         errors[float(w)] = np.linalg.norm((kd - full).reshape(len(times), -1), axis=1)
     return dev, errors

@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError, SimulationBlowUpError
 from kdfaces.io.atomic import atomic_path
 
 __all__ = ["window_report", "WindowRun", "load_object", "JSON_KEYS"]
 
-JSON_KEYS = ("delta_s", "epsilon_m", "diameter_m", "nodes", "tets", "mode_hz", "damping_ratios", "m1", "k1",
+JSON_KEYS = ("window_s", "epsilon_m", "diameter_m", "nodes", "tets", "mode_hz", "damping_ratios", "m1", "k1",
              "gamma1", "omega1", "regime", "h_omega_max", "h_v_max", "qdot1", "verified_settle_s",
              "ratio_predicted_to_verified")
 NONLINEAR_SCALES = (1.0, 0.1)  # full worst-case kick first; a 10× smaller one isolates the integrator from the material
@@ -43,16 +45,20 @@ class WindowRun:
     extra: dict = field(default_factory=dict)
 
 
-def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = 0.09, mesh_epsilon: float | None = None,
-                coarsen: bool = True, cache_dir=None):
+@renamed_kwargs(mesh_epsilon="envelope_fac")
+def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
+                envelope_fac: float | None = None, coarsen: bool = True, cache_dir=None):
     """(TetMesh, surface vertices (V, 3) [m], faces (F, 3), description) of ``surface`` (a mesh file, or None for
-    the default hat). A non-closed surface or one enclosing no volume raises :class:`KDInputError`."""
-    from ..fem.default_hat import DEFAULT_EPSILON, hat_tetmesh
+    the default hat). ``scale``: file units → metres; ``edge_length_fac``, ``envelope_fac``: pytetwild's target
+    edge length and envelope relative to the bounding-box diagonal. A non-closed surface or one enclosing no volume
+    raises :class:`KDInputError`."""
+    from ..fem.default_hat import hat_tetmesh
     from ..geometry.tetmesh import load_surface, tetrahedralize
 
     if surface is None:  # by default the same coarse simulation mesh the hat demo uses
-        eps = DEFAULT_EPSILON if mesh_epsilon is None else mesh_epsilon
-        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, epsilon=eps, coarsen=coarsen, cache_dir=cache_dir)
+        eps = defaults.HAT_ENVELOPE_FAC if envelope_fac is None else envelope_fac
+        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=eps, coarsen=coarsen,
+                                    cache_dir=cache_dir)
         return mesh, np.asarray(surf.vertices), np.asarray(surf.faces), "the default hat"
     if not (np.isfinite(scale) and scale > 0):
         raise KDInputError(f"--scale: expected a positive factor (file units → metres), got {scale}")
@@ -84,14 +90,33 @@ def _attach(nodes, head, *, distance, below):
     return idx, f"the {len(idx)} nodes within {distance} m of the head surface, driven by the head joint"
 
 
-def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, v_max: float = 2.0,
-                  alpha: float = 1.0, beta: float = 0.01, edge_length_fac: float = 0.09, scale: float = 1.0,
-                  attach_distance: float = 0.02, attach_below: float | None = None, modes: int = 6,
-                  nonlinear: bool = True, sweep: bool = True, sweep_stride: int = 10, sweep_h: float = 0.01,
-                  figures: bool = True, progress: bool = True, mesh_epsilon: float | None = None,
+@renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta", attach_distance="attach_distance_m",
+                attach_below="attach_below_m", sweep_h="sweep_step_s", mesh_epsilon="envelope_fac")
+def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v_max: float = 2.0,
+                  rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA, rayleigh_beta: float = defaults.RAYLEIGH_BETA,
+                  edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, envelope_fac: float | None = None,
+                  scale: float = 1.0, attach_distance_m: float = 0.02, attach_below_m: float | None = None,
+                  modes: int = 6, nonlinear: bool = True, sweep: bool = True, sweep_stride: int = 10,
+                  sweep_step_s: float = defaults.HAT_STEP_S, figures: bool = True, progress: bool = False,
                   coarsen: bool = True, cache_dir=None) -> WindowRun:
-    """Run the whole report; see the module docstring. Returns a :class:`WindowRun`; writes ``out``/report.md,
-    window.json and the figures (``figures=False``: window.json only)."""
+    """The modal window report of ``surface`` (a closed mesh file in file units × ``scale`` = metres; None = the
+    default hat); see the module docstring.
+
+    Args:
+        out: folder for report.md, window.json and the figures (``figures=False``: window.json only); None writes
+            nothing (the result is returned either way).
+        rig: the face rig the object is attached to (default :func:`kdfaces.io.load_default_rig`).
+        omega_max, v_max: the bone's largest angular [rad/s] and linear [m/s] speed jump (eq. 30).
+        rayleigh_alpha, rayleigh_beta: Rayleigh damping α [1/s], β [s].
+        edge_length_fac, envelope_fac, coarsen, cache_dir: tetrahedralisation (see :func:`load_object`).
+        attach_distance_m: nodes within this distance of the head surface [m] are attached to the head joint;
+            ``attach_below_m`` attaches the nodes with y ≤ it [m] instead (an object standing on its own; no sweep).
+        modes: modes computed and reported. nonlinear, sweep: also verify with the nonlinear FEM / the KD-vs-full
+            sweep over the demo animation (every ``sweep_stride``-th frame, step ``sweep_step_s`` [s]).
+        progress: a tqdm bar over the stages.
+    Returns:
+        a :class:`WindowRun`.
+    """
     from tqdm import tqdm
 
     from kdfaces.io.rigfiles import load_default_rig
@@ -101,7 +126,10 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
     from .analysis import analyse_model
     from .verify import linear_response, settle_time, verification_horizon
 
-    out = Path(out)
+    alpha, beta, attach_distance, attach_below = rayleigh_alpha, rayleigh_beta, attach_distance_m, attach_below_m
+    out = None if out is None else Path(out)
+    if out is None:
+        figures = False
     run = WindowRun(result={})
     stages = ["tetrahedralise", "assemble", "eigsh", "verify linear"] + (["verify nonlinear"] if nonlinear else [])
     stages += (["KD sweep"] if sweep and attach_below is None else []) + (["report"] if figures else [])
@@ -116,12 +144,12 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
         bar.update(1)
 
     try:
-        rig = load_default_rig()
+        rig = load_default_rig() if rig is None else rig
         mesh, _, surf_faces, source = load_object(surface, scale=scale, edge_length_fac=edge_length_fac,
-                                                  mesh_epsilon=mesh_epsilon, coarsen=coarsen, cache_dir=cache_dir)
+                                                  envelope_fac=envelope_fac, coarsen=coarsen, cache_dir=cache_dir)
         done("tetrahedralise")
         att, att_text = _attach(mesh.nodes, rig.neutral, distance=attach_distance, below=attach_below)
-        model = FEMModel(mesh, DEFAULT_MATERIAL, att, alpha=alpha, beta=beta)  # the demo hat's material
+        model = FEMModel(mesh, DEFAULT_MATERIAL, att, rayleigh_alpha=alpha, rayleigh_beta=beta)  # the demo hat's
         model.rest_stiffness()
         done("assemble")
         sk = rig.skeleton
@@ -131,31 +159,34 @@ def window_report(surface=None, *, out="kd-out/window", omega_max: float = 4.0, 
         done("eigsh")
         b, w = an.basis, an.window
         f1 = float(b.frequencies_hz[0])
-        horizon = verification_horizon(w.delta_s, f1)
+        horizon = verification_horizon(w.window_s, f1)
         v0 = an.Gamma @ an.phi
-        lin = linear_response(an.K, an.M, v0, alpha=alpha, beta=beta, h=1.0 / (40 * f1), t_end=horizon, basis=b)
+        lin = linear_response(an.K, an.M, v0, rayleigh_alpha=alpha, rayleigh_beta=beta, step_s=1.0 / (40 * f1),
+                              end_s=horizon, basis=b)
         run.response = lin
         settle = settle_time(lin.times, lin.norm, w.epsilon_m)
         run.extra["mode1_envelope_settle_s"] = settle_time(lin.times, lin.envelope, w.epsilon_m)
-        run.extra["truncation_rest_at_delta_m"] = float(np.interp(w.delta_s, lin.times, lin.residual))
+        run.extra["truncation_rest_at_delta_m"] = float(np.interp(w.window_s, lin.times, lin.residual))
         run.extra["max_node_displacement_m"] = lin.max_node_m
         done("verify linear")
         if nonlinear:
             run.extra["nonlinear"] = _verify_nonlinear(model, an, v0, horizon)
             done("verify nonlinear")
         if sweep and attach_below is None:
-            run.extra["sweep"] = _kd_sweep(rig, model, w.delta_s, stride=sweep_stride, h=sweep_h)
+            run.extra["sweep"] = _kd_sweep(rig, model, w.window_s, stride=sweep_stride, step_s=sweep_step_s)
             done("KD sweep")
     finally:
         bar.close()
     run.result = {
-        "delta_s": w.delta_s, "epsilon_m": w.epsilon_m, "diameter_m": an.diameter_m, "nodes": an.nodes,
+        "window_s": w.window_s, "epsilon_m": w.epsilon_m, "diameter_m": an.diameter_m, "nodes": an.nodes,
         "tets": an.tets, "mode_hz": [float(x) for x in b.frequencies_hz],
         "damping_ratios": [float(x) for x in b.damping_ratios], "m1": float(b.mass[0]), "k1": float(b.stiffness[0]),
         "gamma1": float(b.gamma[0]), "omega1": float(b.omega[0]), "regime": w.regime,
         "h_omega_max": w.h_omega_max, "h_v_max": w.h_v_max, "qdot1": w.qdot1, "verified_settle_s": settle,
-        "ratio_predicted_to_verified": w.delta_s / settle if settle > 0 else float("inf"),
+        "ratio_predicted_to_verified": w.window_s / settle if settle > 0 else float("inf"),
     }
+    if out is None:
+        return run
     out.mkdir(parents=True, exist_ok=True)
     if figures:
         from .report import write_all
@@ -179,15 +210,16 @@ def _verify_nonlinear(model, an, v0, horizon) -> dict:
     b, w = an.basis, an.window
     h = 1.0 / (40 * float(b.frequencies_hz[0]))
     g_be, w_be = backward_euler_mode(b.stiffness[0] / b.mass[0], b.damping[0] / b.mass[0], h)
-    out = {"h_s": h, "gamma1_backward_euler": g_be, "omega1_backward_euler": w_be,
+    out = {"step_s": h, "gamma1_backward_euler": g_be, "omega1_backward_euler": w_be,
            "delta_backward_euler_s": float(np.log(w.epsilon_m * w_be / w.qdot1) / g_be) if w_be > 0 else float("nan")}
-    lin_be = linear_response(an.K, an.M, v0, alpha=model.alpha, beta=model.beta, h=h, t_end=horizon,
+    lin_be = linear_response(an.K, an.M, v0, rayleigh_alpha=model.rayleigh_alpha,
+                             rayleigh_beta=model.rayleigh_beta, step_s=h, end_s=horizon,
                              scheme="backward-euler")
     out["linear_backward_euler_settle_s"] = settle_time(lin_be.times, lin_be.norm, w.epsilon_m)
     out["runs"] = []
     for s in NONLINEAR_SCALES:
         try:
-            r = nonlinear_response(model, s * v0, h=h, t_end=horizon)
+            r = nonlinear_response(model, s * v0, step_s=h, end_s=horizon)
         except SimulationBlowUpError as e:
             out["runs"].append({"scale": s, "error": str(e)})
             continue
@@ -196,8 +228,9 @@ def _verify_nonlinear(model, an, v0, horizon) -> dict:
     return out
 
 
-def _kd_sweep(rig, model, delta, *, stride: int, h: float) -> dict:
+def _kd_sweep(rig, model, delta, *, stride: int, step_s: float) -> dict:
     """KD vs full over the demo animation for windows around δ (Fig. 10), every ``stride``-th frame."""
+    h = step_s
     from kdfaces.motion.trajectory import KinematicTrajectory
     from kdfaces.shots.builtin import demo_animation
 
@@ -211,9 +244,9 @@ def _kd_sweep(rig, model, delta, *, stride: int, h: float) -> dict:
     times = start + np.round((times - start) / h) * h
     windows = sorted({round(f * delta / h) * h for f in (0.25, 0.5, 1.0, 1.5, 2.0)} - {0.0})
     try:
-        dev, errors = kd_error_sweep(system, traj, times, windows, h=h)
+        dev, errors = kd_error_sweep(system, traj, times, windows, step_s=h)
     except SimulationBlowUpError as e:
         return {"error": str(e)}
-    return {"times": times, "deviation": dev, "errors": errors, "h": h, "stride": stride}
+    return {"times": times, "deviation": dev, "errors": errors, "step_s": h, "stride": stride}
 
 

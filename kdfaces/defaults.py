@@ -1,0 +1,82 @@
+"""One set of defaults, used alike by the Python API, shot files and the command-line tools.
+
+Change a default here and every entry point follows. ``None`` for a step means "the animation's frame interval"
+(:func:`default_step`), so frames land on the simulation grid whatever the capture rate.
+"""
+
+from __future__ import annotations
+
+from .errors import KDInputError
+
+__all__ = [
+    "SETTLE_TIME_S", "DAMPING_RATIO", "SHAPE_MATCHING_ALPHA", "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
+    "CLUSTER_RINGS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "WIDTH_S", "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
+    "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
+    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "default_step",
+]
+
+# --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
+#: Settle time t̂ [s]: 90 % of a tracking error is gone after this long.
+SETTLE_TIME_S = 0.25
+#: Damping ratio ζ (1 = critically damped, On the Beat eq. 4; < 1 overshoots, which is the secondary motion).
+DAMPING_RATIO = 0.3
+#: Müller shape-matching stiffness α ∈ [0, 1].
+SHAPE_MATCHING_ALPHA = 0.2
+#: "relative" damps ẋ − ẋ_K; "absolute" is the paper's −K_d·ẋ.
+DAMPING_MODE = "relative"
+#: Lumped vertex mass per unit area [kg/m²].
+AREAL_DENSITY_KG_M2 = 10.0
+#: Shape-matching clusters are the k-rings of cluster centres.
+CLUSTER_RINGS = 2
+
+# --- KD windows (§3, §5) -------------------------------------------------------------------------------------------
+#: "auto": the §5.2 (faces) or §5.3 (FEM objects) window; or seconds.
+WINDOW_S = "auto"
+#: Simulation step [s]; None = the animation's frame interval.
+STEP_S = None
+#: ε as a fraction of the object's diameter (§5.3 uses 0.1 %).
+EPSILON_FRACTION = 1e-3
+
+# --- IKD (§3.1, §4) ------------------------------------------------------------------------------------------------
+#: Width σ [s] of a constraint's correction bell.
+WIDTH_S = 0.3
+#: Shape of the correction bell: "gaussian", "poly" or "asymmetric".
+CURVE = "gaussian"
+#: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹ of end-effector constraints, relative to ‖J‖².
+PINV_DAMPING = 1e-3
+#: "secant" (batched, ours) or "paper" (Algorithm 1).
+SOLVER_UPDATE = "secant"
+#: Scale s of each update (0.8 is the paper's "scaled" variant).
+STEP_SCALE = 1.0
+#: Stop when every constraint is within these [m], [m/s].
+TOLERANCE_M = 1e-5
+TOLERANCE_MPS = 1e-4
+#: Sweeps over all constraints.
+MAX_ITERATIONS = 20
+#: Largest per-vertex correction [m] before a target is reported out of reach.
+MAX_CORRECTION_M = 0.5
+
+# --- the FEM hat (kdfem) -------------------------------------------------------------------------------------------
+#: pytetwild target edge length and envelope, relative to the surface's bounding-box diagonal (a ~1k-tet mesh).
+HAT_EDGE_LENGTH_FAC = 0.09
+HAT_ENVELOPE_FAC = 0.004
+#: Rayleigh damping C = αM + βK: α [1/s], β [s].
+RAYLEIGH_ALPHA = 1.0
+RAYLEIGH_BETA = 0.01
+#: The hat's simulation step [s] and KD window [s].
+HAT_STEP_S = 0.01
+HAT_WINDOW_S = 0.568
+
+
+def default_step(trajectory, step_s: float | None = None) -> float:
+    """``step_s`` [s] if given, else the trajectory's frame interval 1/fps (so frames lie on the step grid)."""
+    if step_s is not None:
+        s = step_s
+    else:
+        fps = getattr(trajectory, "fps", None)
+        if fps is None:
+            raise KDInputError("step_s: this trajectory has no frame rate; give the simulation step in seconds")
+        s = 1.0 / float(fps)
+    if isinstance(s, bool) or not isinstance(s, int | float) or not (s > 0 and s < float("inf")):
+        raise KDInputError(f"step_s: expected a positive number of seconds, got {s!r}")
+    return float(s)

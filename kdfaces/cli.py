@@ -9,7 +9,15 @@ from pathlib import Path
 
 from .errors import KDError
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "configure_output"]
+
+
+def configure_output(*, verbose: bool = False) -> None:
+    """The command-line tools' process settings (a library call never changes them): Warp's start-up banner and
+    kernel-cache messages only with ``verbose``."""
+    import warp as wp
+
+    wp.config.quiet = not verbose
 
 
 def _demo(args) -> dict:
@@ -25,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .viz.viewer import add_view_parser
 
     ap = argparse.ArgumentParser(prog="kdfaces", description="Kinodynamics for blend-shape face rigs.")
+    ap.add_argument("-v", "--verbose", action="store_true", help="show Warp's and VTK's own messages")
     sub = ap.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run the built-in demo shot on the default rig")
     demo.add_argument("--out", default="kd-out/demo", help="output folder (default kd-out/demo)")
@@ -42,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    configure_output(verbose=args.verbose)
     try:
         summary = args.func(args)
     except KDError as e:

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from kdfaces import defaults
+from kdfaces.cli import configure_output
 from kdfaces.errors import KDError
 
 __all__ = ["main", "build_parser"]
@@ -22,6 +23,7 @@ def _demo(args) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="kdfem", description="FEM secondary motion attached to an animated head.")
+    ap.add_argument("-v", "--verbose", action="store_true", help="show Warp's and VTK's own messages")
     sub = ap.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the default head nods and turns wearing a floppy hat: rigid | KD | full")
     demo.add_argument("--out", default="kd-out/hat", help="output folder (default kd-out/hat)")
@@ -82,6 +84,7 @@ def _add_window_parser(subparsers):
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    configure_output(verbose=args.verbose)
     try:
         summary = args.func(args)
     except KDError as e:

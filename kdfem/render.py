@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kdfaces.viz.figures import image_grid, save_figure
+from kdfaces.viz.figures import image_grid, save_figure, subplots
 
 __all__ = ["hat_filmstrip", "error_plot"]
 
@@ -19,9 +19,6 @@ def _pd(pv, points, faces):
 def hat_filmstrip(path, rig, trajectory, system, hat_faces, rows: dict, times, *, size=(300, 380)) -> Path:
     """A grid PNG: one row per label (hat node positions (F, N, 3) [m]), one column per time [s]; the head is the
     face rig at that time, the hat its embedded render surface."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import pyvista as pv
 
     pv.OFF_SCREEN = True
@@ -56,12 +53,7 @@ def hat_filmstrip(path, rig, trajectory, system, hat_faces, rows: dict, times, *
 def error_plot(path, times, errors: dict, deviation) -> Path:
     """Fig. 10 analog: max KD-vs-full node error per frame [m] for each window δ, with the full simulation's
     deviation from the rigid hat for scale."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 3.6))
+    fig, ax = subplots(figsize=(7, 3.6))
     for w, e in sorted(errors.items()):
         ax.semilogy(times, np.maximum(e, 1e-12), label=f"KD δ = {w:g} s")
     ax.semilogy(times, np.maximum(deviation, 1e-12), "k--", label="full sim − rigid")

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 
-__all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "check_positions"]
+__all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "subplots", "check_positions"]
 
 #: The skin colour of plain renders.
 SKIN = "#d9a58a"
@@ -168,14 +168,9 @@ def image_grid(images: dict[str, list[np.ndarray]], column_titles: list[str], *,
     ``colorbar``: ``{"cmap": name, "clim": (lo, hi), "label": text}`` adds a vertical colour bar on the right.
     ``captions``: row label → one text per image, written under it.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     nr, nc = len(images), len(column_titles)
     width = max(cell_inches[0] * nc + (0.9 if colorbar else 0.0), 3.6 if title else 0.0)
-    fig, axes = plt.subplots(nr, nc, figsize=(width, cell_inches[1] * nr + (0.4 if title else 0)), squeeze=False)
+    fig, axes = subplots(nr, nc, figsize=(width, cell_inches[1] * nr + (0.4 if title else 0)), squeeze=False)
     for r, (label, imgs) in enumerate(images.items()):
         for c, img in enumerate(imgs):
             ax = axes[r, c]
@@ -204,15 +199,19 @@ def image_grid(images: dict[str, list[np.ndarray]], column_titles: list[str], *,
     return fig
 
 
-def save_figure(fig, path) -> Path:
-    """Write a matplotlib figure to ``path`` (PNG) atomically and close it."""
-    import matplotlib.pyplot as plt
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize=(6.4, 4.8), **kwargs):
+    """``(figure, axes)`` like ``pyplot.subplots``, but a bare :class:`matplotlib.figure.Figure`: no pyplot state,
+    no backend switch (a notebook's backend stays as it is), nothing to close."""
+    from matplotlib.figure import Figure
 
-    try:
-        with atomic_path(path, ".png") as tmp:
-            fig.savefig(tmp, dpi=100, format="png")
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
+
+
+def save_figure(fig, path, *, dpi: int = 100) -> Path:
+    """Write a matplotlib figure to ``path`` (PNG) atomically."""
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
     return Path(path)
 
 

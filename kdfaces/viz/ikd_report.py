@@ -11,26 +11,16 @@ import numpy as np
 from ..deprecation import renamed_kwargs
 from ..ikd.constraints import Constraint
 from ..ikd.solver import IKDResult, solve_ikd
-from .figures import save_figure
+from .figures import save_figure, subplots
 
 __all__ = ["convergence_plot", "offset_grid", "offset_grid_plot"]
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def convergence_plot(path, runs: dict[str, IKDResult], *, tolerance_m: float | None = None) -> Path:
     """Log error vs iteration, one panel per constraint, one line per solver run (e.g. paper, scaled, secant)."""
-    plt = _pyplot()
     first = next(iter(runs.values()))
     n = len(first.constraints)
-    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.0), squeeze=False)
+    fig, axes = subplots(1, n, figsize=(3.2 * n, 3.0), squeeze=False)
     for j, c in enumerate(first.constraints):
         ax = axes[0, j]
         for label, r in runs.items():
@@ -69,9 +59,8 @@ def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window
 
 
 def offset_grid_plot(path, offsets_m, errors_m, *, title: str, axes_names=("x", "y")) -> Path:
-    plt = _pyplot()
     offs_cm = np.asarray(offsets_m) * 100
-    fig, ax = plt.subplots(figsize=(4.2, 3.6))
+    fig, ax = subplots(figsize=(4.2, 3.6))
     im = ax.imshow(np.log10(np.maximum(errors_m * 100, 1e-9)).T, origin="lower", cmap="viridis",
                    extent=[offs_cm[0], offs_cm[-1], offs_cm[0], offs_cm[-1]], aspect="equal")
     fig.colorbar(im, ax=ax, label="log10 error after iterations [cm]")

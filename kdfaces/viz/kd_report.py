@@ -89,13 +89,10 @@ def kd_error_report(system, trajectory, windows, *, step_s: float | None = None,
 
 def write_kd_report(out_dir, report: KDErrorReport, *, stem: str = "kd_error") -> tuple[Path, Path]:
     """``<stem>.png`` (error per frame for each window, log scale, ε dashed; deviation below) and ``<stem>.json``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .figures import subplots
 
     out = Path(out_dir)
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    fig, (ax, ax2) = subplots(2, 1, figsize=(8, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     floor = 1e-9
     for w, e in zip(report.windows, report.errors, strict=True):
         auto = report.window_auto is not None and abs(w - report.window_auto) < 1e-12
@@ -113,7 +110,6 @@ def write_kd_report(out_dir, report: KDErrorReport, *, stem: str = "kd_error") -
     png, js = out / f"{stem}.png", out / f"{stem}.json"
     with atomic_path(png, ".png") as tmp:
         fig.savefig(tmp, dpi=110)
-    plt.close(fig)
     with atomic_path(js, ".json") as tmp:
         tmp.write_text(json.dumps(report.to_json(), indent=1) + "\n")
     return png, js

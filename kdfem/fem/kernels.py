@@ -13,7 +13,6 @@ import warp as wp
 
 __all__ = ["forces_kernel", "rotations_kernel", "warped_kernel", "hessian_kernel", "mat99"]
 
-wp.config.quiet = True
 
 mat99 = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
 _0 = wp.float64(0.0)

@@ -12,26 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from kdfaces.io.atomic import atomic_path
+from kdfaces.viz.figures import save_figure, subplots
 
 __all__ = ["modes_figure", "envelope_figure", "kd_error_figure", "write_report", "write_all"]
 
 
 def _save(fig, path) -> Path:
-    import matplotlib.pyplot as plt
-
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return Path(path)
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return save_figure(fig, path)
 
 
 def modes_figure(path, mesh, free, basis, *, count: int = 4, size=(320, 380)) -> Path:
@@ -40,7 +27,6 @@ def modes_figure(path, mesh, free, basis, *, count: int = 4, size=(320, 380)) ->
     displacement is 15 % of the diameter, coloured by displacement. One panel per mode, titled with f_i and ζ_i."""
     import pyvista as pv
 
-    plt = _plt()
     pv.OFF_SCREEN = True
     faces = mesh.boundary_faces()
     cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
@@ -71,7 +57,7 @@ def modes_figure(path, mesh, free, basis, *, count: int = 4, size=(320, 380)) ->
             images.append(np.asarray(pl.screenshot(return_img=True)))
     finally:
         pl.close()
-    fig, axes = plt.subplots(1, count, figsize=(2.4 * count, 3.0), squeeze=False)
+    fig, axes = subplots(1, count, figsize=(2.4 * count, 3.0), squeeze=False)
     f, z = basis.frequencies_hz, basis.damping_ratios
     for i, ax in enumerate(axes[0]):
         ax.imshow(images[i])
@@ -87,8 +73,7 @@ def envelope_figure(path, window, basis, linear, *, nonlinear=None, settle_linea
     """ε, δ and A₁e^{γ₁t} (eq. 25–28) against the brute-force ‖u(t)‖ of the linear system (``linear``, a
     :class:`kdfem.modal.verify.Response`, with its measured mode-1 envelope and truncation rest) and, when given,
     of the nonlinear FEM (``nonlinear``: (Response, scale, label)), all in metres."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = subplots(figsize=(7.5, 4.2))
     t = linear.times
     g = basis.gamma[0]
     if window.regime == "underdamped":
@@ -119,9 +104,10 @@ def envelope_figure(path, window, basis, linear, *, nonlinear=None, settle_linea
 def kd_error_figure(path, times, errors: dict, deviation, *, delta: float, epsilon: float) -> Path:
     """Fig. 10 analog. Left: ‖x_KD − x_full‖ per frame [m] for each window δ (dict δ → (T,) errors); right: the
     largest error over the animation against δ, with the predicted δ and ε marked."""
-    plt = _plt()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [1.6, 1]})
-    cmap = plt.get_cmap("viridis")
+    fig, (a, b) = subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [1.6, 1]})
+    import matplotlib
+
+    cmap = matplotlib.colormaps["viridis"]
     ws = sorted(errors)
     for k, w in enumerate(ws):
         a.semilogy(times, np.maximum(errors[w], 1e-9), color=cmap(k / max(1, len(ws) - 1)), label=f"δ = {w:.3f} s")

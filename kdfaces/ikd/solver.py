@@ -181,7 +181,7 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window: floa
         window: KD window δ [s]; h: simulation step [s].
         update: "paper" (Algorithm 1) or "secant" (batched, see module doc); damping: s in (0, 1].
         tolerance_m / tolerance_mps: stop when every constraint's max-vertex error is below these [m, m/s].
-        max_iterations: sweeps over all constraints; max_correction: largest per-vertex |Δx| [m] (|Δẋ| [m/s]);
+        max_iterations: sweeps over all constraints; max_correction: largest per-vertex ``|Δx|`` [m] (``|Δẋ|`` [m/s]);
             a target that needs more is reported out of reach, with the residual of the clamped correction.
         callback: optional ``callback(iteration, errors)`` after each sweep.
     """

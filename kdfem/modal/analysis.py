@@ -156,7 +156,7 @@ class ModalWindow:
 
     Attributes:
         delta_s: δ [s]; epsilon_m: ε [m]; qdot1: q̇_1(0) [m/s]; amplitude: A_1 = q̇_1(0)/ω_1 [m] (underdamped);
-        h_omega_max [m·s/rad → m/s per rad/s], h_v_max [1]: max |h| over the angular / linear components;
+        h_omega_max [m·s/rad → m/s per rad/s], h_v_max [1]: max ``|h|`` over the angular / linear components;
         regime: damping regime of mode 1; h: the full activation vector (6,).
     """
 

@@ -97,7 +97,7 @@ class Correction:
         return out
 
     def evaluate(self, times, order: int = 2):
-        """f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays of shape (T, *state_shape)."""
+        """f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays of shape ``(T, *state_shape)``."""
         phi = self.basis_matrix(times, order)
         n = len(self.slots)
         c = self.coefficients.reshape(n, -1)

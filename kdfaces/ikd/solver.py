@@ -245,7 +245,7 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window_s: fl
         window_s: KD window δ [s]; step_s: simulation step [s] (default the frame interval).
         update: "secant" (batched, see module doc) or "paper" (Algorithm 1); step_scale: s in (0, 1].
         tolerance_m / tolerance_mps: stop when every constraint's max-vertex error is below these [m, m/s].
-        max_iterations: sweeps over all constraints; max_correction_m: largest per-vertex |Δx| [m] (|Δẋ| [m/s];
+        max_iterations: sweeps over all constraints; max_correction_m: largest per-vertex ``|Δx|`` [m] (``|Δẋ|`` [m/s];
             π/2 rad for a joint-angle state); a target that needs more is reported out of reach, with the
             residual of the clamped correction.
         snap_to_frames: move constraints that fall between frames onto the nearest frame (else they warn with

@@ -68,7 +68,7 @@ class ImplicitEuler:
     """Backward-Euler stepper minimising the incremental potential (see module docstring).
 
     ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails;
-    ``slow`` [-]: contraction ratio |Δv_k|/|Δv_k−1| above which a member refactors its own warped matrix (also
+    ``slow`` [-]: contraction ratio ``|Δv_k|/|Δv_k−1|`` above which a member refactors its own warped matrix (also
     after a backtracked line search or ``force_it`` iterations; at most once per member and step);
     ``threads``: batch members are split over this many threads (Warp launches and SuperLU release the GIL).
     """

@@ -162,7 +162,7 @@ class ModalWindow:
 
     Attributes:
         window_s: δ [s]; epsilon_m: ε [m]; qdot1: q̇_1(0) [m/s]; amplitude: A_1 = q̇_1(0)/ω_1 [m] (underdamped);
-        h_omega_max [m/s per rad/s], h_v_max [1]: the paper's h_ωmax, h_vmax, max |activation| over its angular /
+        h_omega_max [m/s per rad/s], h_v_max [1]: the paper's h_ωmax, h_vmax, max ``|activation|`` over its angular /
         linear components; regime: damping regime of mode 1; activation: the full activation vector h (6,).
     """
 

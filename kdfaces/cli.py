@@ -13,11 +13,25 @@ __all__ = ["main", "build_parser", "configure_output"]
 
 
 def configure_output(*, verbose: bool = False) -> None:
-    """The command-line tools' process settings (a library call never changes them): Warp's start-up banner and
-    kernel-cache messages only with ``verbose``."""
+    """The command-line tools' process settings (a library call never changes them): Warp's start-up banner, its
+    kernel-cache messages and its native "no CUDA driver" warning only with ``verbose``."""
+    import os
+
     import warp as wp
 
-    wp.config.quiet = not verbose
+    if verbose:
+        wp.init()
+        return
+    wp.config.log_level = wp.LOG_WARNING
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)  # the native library writes its warning straight to file descriptor 2
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _demo(args) -> dict:

@@ -20,7 +20,7 @@ Optional:
 - ``prepare(trajectory, start_times, steps, step_s) -> None``: called first with the window starts and the step
   count, so the system can sample the trajectory on the whole step grid once;
 - ``correction_jacobian(trajectory, time_s, x, indices) -> J``: when the trajectory's state (what IKD corrects,
-  ``trajectory.state_shape``) is not the observed points, J = ∂x[indices]/∂state, shape (G, 3, *state_shape);
+  ``trajectory.state_shape``) is not the observed points, J = ∂x[indices]/∂state, shape ``(G, 3, *state_shape)``;
 - ``automatic_window(trajectory, *, step_s, epsilon_m) -> WindowEstimate``: the system's own window (§5.3).
 
 The trajectory is read only through ``evaluate(times, order)`` (and static data such as a rig or a skeleton), so a

@@ -99,3 +99,24 @@ def test_batched_kd_equals_per_frame_kd(demo_hat):
     # multi-right-hand-side solve changes only round-off, which may shift a member's last iteration across the
     # Newton tolerance (1e-6 m per update): differences stay at that level (measured 2e-7 m over 20 steps)
     np.testing.assert_allclose(batch, single, atol=5e-6)
+
+
+def test_the_shipped_hat_mesh_is_current_and_used():
+    """meshes/hat_tets.npz matches today's default hat and settings (else: python scripts/build_hat_mesh.py), and
+    the default hat is read from it, so every machine simulates the same tets."""
+    from kdfaces import defaults
+    from kdfem.fem.default_hat import SHIPPED_HAT_TETS, hat_tetmesh
+    from kdfem.geometry import christmas_hat
+    from kdfem.geometry.tetmesh import tet_key
+
+    surf = christmas_hat()
+    key = tet_key(surf.vertices, surf.faces, edge_length_fac=defaults.HAT_EDGE_LENGTH_FAC,
+                  envelope_fac=defaults.HAT_ENVELOPE_FAC, coarsen=True)
+    with np.load(SHIPPED_HAT_TETS) as d:
+        assert str(d["key"]) == key, "the default hat changed: rebuild meshes/hat_tets.npz"
+        nodes, tets = d["nodes"], d["tets"]
+    _, mesh, seconds = hat_tetmesh()
+    assert seconds == 0.0
+    np.testing.assert_array_equal(mesh.nodes, nodes)
+    np.testing.assert_array_equal(mesh.tets, tets)
+    assert (mesh.volumes() > 0).all()

@@ -35,10 +35,12 @@ class Clusters:
 
     @property
     def num_clusters(self) -> int:
+        """C, the number of clusters."""
         return len(self.offsets) - 1
 
     @property
     def num_vertices(self) -> int:
+        """N, the number of vertices."""
         return len(self.vertex_offsets) - 1
 
     @classmethod
@@ -54,6 +56,7 @@ class Clusters:
 
     @classmethod
     def empty(cls, num_vertices: int) -> Clusters:
+        """No clusters over ``num_vertices`` vertices (shape matching off)."""
         return cls.from_matrix(sp.csr_matrix((0, num_vertices)))
 
 

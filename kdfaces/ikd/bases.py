@@ -100,7 +100,7 @@ class GaussianBasis(Basis):
 
 @dataclass(frozen=True)
 class PolyBell(Basis):
-    """(1 − τ²/w²)³ on |τ| < w = 3σ, σ = ``width_s`` [s]: compact and C²."""
+    """(1 − τ²/w²)³ on ``|τ| < w`` = 3σ, σ = ``width_s`` [s]: compact and C²."""
 
     width_s: float = defaults.WIDTH_S
 

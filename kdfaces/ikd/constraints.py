@@ -89,6 +89,7 @@ class Constraint:
 
     @property
     def slot_kind(self) -> str:
+        """The kind of correction slot it needs: "velocity" for velocity constraints, else "position"."""
         return VELOCITY if self.kind == "velocity" else POSITION
 
     @property
@@ -98,6 +99,7 @@ class Constraint:
 
     @property
     def unit(self) -> str:
+        """"m/s" for velocity constraints, else "m"."""
         return "m/s" if self.kind == "velocity" else "m"
 
     def measure(self, x: np.ndarray, x_prev: np.ndarray | None, h: float) -> np.ndarray:
@@ -109,6 +111,7 @@ class Constraint:
         return x[self.indices]
 
     def residual(self, x, x_prev, h) -> np.ndarray:
+        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12)."""
         return self.target - self.measure(x, x_prev, h)
 
     def error(self, r: np.ndarray) -> float:
@@ -128,7 +131,7 @@ class Constraint:
 
     def lift_through(self, r: np.ndarray, J: np.ndarray) -> np.ndarray:
         """A correction of a non-vertex state for residual ``r`` through J = ∂x[indices]/∂state, shape
-        (G, 3, *S): the damped pseudo-inverse Jᵀ(JJᵀ + μ²·tr(JJᵀ)/m·I)⁻¹ r (eq. 5, 14) of the measured quantity's
+        ``(G, 3, *S)``: the damped pseudo-inverse Jᵀ(JJᵀ + μ²·tr(JJᵀ)/m·I)⁻¹ r (eq. 5, 14) of the measured quantity's
         Jacobian (the weighted point for an end effector). Returns shape S."""
         S = J.shape[2:]
         Jg = J.reshape(J.shape[0], 3, -1)

@@ -148,6 +148,7 @@ class CorrectedTrajectory:
         return ("corrected", base, corr, self._token if self.bump is not None else None)
 
     def evaluate(self, times, order: int = 2):
+        """x_K + f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays ``(T, *state_shape)``."""
         out = list(self.base.evaluate(times, order))
         if self.correction is not None:
             for k, fk in enumerate(self.correction.evaluate(times, order)):
@@ -164,4 +165,5 @@ class CorrectedTrajectory:
         return tuple(out)
 
     def positions(self, times):
+        """x_K + f at ``times`` (T,) [s] → ``(T, *state_shape)``."""
         return self.evaluate(times, order=0)[0]

@@ -30,6 +30,7 @@ def to_jsonable(obj):
 
 
 def write_summary(out_dir, summary: dict) -> Path:
+    """Write ``summary`` (a dict; numpy values converted) as ``out_dir``/summary.json, atomically; returns its path."""
     path = Path(out_dir) / "summary.json"
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(to_jsonable(summary), indent=2) + "\n")

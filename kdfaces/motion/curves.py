@@ -33,6 +33,10 @@ class KeyframeCurve:
     @classmethod
     def create(cls, times, values, *, interpolation: str = "catmull-rom", tangents=None,
                where: str = "curve") -> KeyframeCurve:
+        """A curve from keys: ``times`` (M,) [s] strictly increasing, ``values`` (M,) or (M, C).
+
+        ``interpolation`` is "linear", "catmull-rom" or "hermite" (with ``tangents`` (M, C) per second); ``where``
+        names the curve in errors."""
         t = np.asarray(times, dtype=np.float64).reshape(-1)
         v = np.asarray(values, dtype=np.float64)
         if v.ndim == 1:
@@ -69,10 +73,12 @@ class KeyframeCurve:
 
     @property
     def channels(self) -> int:
+        """C, the number of channels."""
         return self.values.shape[1]
 
     @property
     def span(self) -> tuple[float, float]:
+        """(first key, last key) [s]."""
         return float(self.times[0]), float(self.times[-1])
 
     def evaluate(self, times, order: int = 2):

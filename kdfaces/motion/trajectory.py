@@ -55,6 +55,7 @@ class FaceAnimation:
 
     @property
     def duration(self) -> float:
+        """end − start [s]."""
         return self.end - self.start
 
     @property
@@ -103,22 +104,27 @@ class KinematicTrajectory:
 
     @property
     def num_vertices(self) -> int:
+        """N, the rig's vertex count."""
         return self.rig.num_vertices
 
     @property
     def start(self) -> float:
+        """Shot start [s]."""
         return self.animation.start
 
     @property
     def end(self) -> float:
+        """Shot end [s]."""
         return self.animation.end
 
     @property
     def fps(self) -> float:
+        """Frame rate [1/s]; the default simulation step is 1/fps."""
         return self.animation.fps
 
     @property
     def frame_times(self) -> np.ndarray:
+        """Times [s] of every frame, shape (F,)."""
         return self.animation.frame_times
 
     def weights(self, times, order: int = 2):
@@ -157,6 +163,7 @@ class KinematicTrajectory:
         return tuple(samples[o] for o in range(order + 1))
 
     def positions(self, times) -> np.ndarray:
+        """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""
         return self.evaluate(times, order=0)[0]
 
     def _evaluate_chunk(self, t):

@@ -73,10 +73,12 @@ class BlendshapeRig:
 
     @property
     def num_vertices(self) -> int:
+        """N, the number of vertices."""
         return len(self.neutral)
 
     @property
     def num_shapes(self) -> int:
+        """K, the number of blend shapes."""
         return len(self.deltas)
 
     @property

@@ -50,6 +50,7 @@ class Skeleton:
             raise KDInputError("skeleton weights: expected non-negative weights summing to at most 1 per vertex")
 
     def index(self, name: str) -> int:
+        """Index of the joint called ``name``; an unknown name raises :class:`KDInputError`."""
         try:
             return self.names.index(name)
         except ValueError:

@@ -131,6 +131,7 @@ class Shot:
 
     @property
     def trajectory(self) -> KinematicTrajectory:
+        """The kinematic trajectory x_K of the shot's rig under its animation (built once)."""
         if not hasattr(self, "_trajectory"):
             self._trajectory = KinematicTrajectory(self.rig, self.animation)
         return self._trajectory

@@ -152,6 +152,7 @@ class FaceRenderer:
         return (np.abs(img.astype(np.int16) - np.array(_BACKGROUND)).max(axis=-1) > 127)
 
     def close(self) -> None:
+        """Release the off-screen plotter."""
         self.plotter.close()
 
     def __enter__(self) -> FaceRenderer:

@@ -59,6 +59,7 @@ def offset_grid(system, trajectory, constraint: Constraint, offsets_m, *, window
 
 
 def offset_grid_plot(path, offsets_m, errors_m, *, title: str, axes_names=("x", "y")) -> Path:
+    """The error map of :func:`offset_grid` as a PNG: errors (M, M) [m] over target offsets (M,) [m] along two axes."""
     offs_cm = np.asarray(offsets_m) * 100
     fig, ax = subplots(figsize=(4.2, 3.6))
     im = ax.imshow(np.log10(np.maximum(errors_m * 100, 1e-9)).T, origin="lower", cmap="viridis",

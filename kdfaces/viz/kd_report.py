@@ -45,6 +45,7 @@ class KDErrorReport:
     window_auto: float | None = None
 
     def to_json(self) -> dict:
+        """The report as plain JSON types (seconds, metres)."""
         return {
             "times_s": self.times.tolist(),
             "epsilon_m": self.epsilon,

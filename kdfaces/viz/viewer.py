@@ -218,6 +218,7 @@ class ShotViewer:
         self.update_text()
 
     def toggle_play(self) -> None:
+        """Start or stop playback."""
         self.set_playing(not self.playing)
 
     def tick(self, *_) -> None:
@@ -324,6 +325,7 @@ class ShotViewer:
         return "\n".join(lines)
 
     def update_text(self) -> None:
+        """Redraw the status text (time, mode, ms per state, IKD)."""
         self._text.SetText(2, self.status())
         self.plotter.render()
 
@@ -345,6 +347,7 @@ class ShotViewer:
         self.plotter.show(title=f"kdfaces view: {self.shot.name}")
 
     def close(self) -> None:
+        """Close the window and free the plotter."""
         self.plotter.close()
 
 

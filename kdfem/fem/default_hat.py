@@ -2,18 +2,12 @@
 
 from __future__ import annotations
 
-import hashlib
-import time
-from pathlib import Path
-
-import numpy as np
-
 from kdfaces import defaults
 from kdfaces.deprecation import renamed_kwargs
-from kdfaces.io.atomic import atomic_path
+from kdfaces.io.rigfiles import DEFAULT_RIG_PATH
 
 from ..geometry.hat import HatParams, christmas_hat
-from ..geometry.tetmesh import TetMesh, embed_surface, tetrahedralize
+from ..geometry.tetmesh import embed_surface, tetrahedralize_cached
 from .attachment import attached_nodes
 from .materials import Material
 from .model import FEMModel
@@ -28,6 +22,9 @@ DEFAULT_MATERIAL = Material(youngs=3.0e3)
 DEFAULT_ALPHA, DEFAULT_BETA = defaults.RAYLEIGH_ALPHA, defaults.RAYLEIGH_BETA
 #: pytetwild target edge length / bbox diagonal and envelope: a coarse (~1k tet) simulation mesh.
 DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = defaults.HAT_EDGE_LENGTH_FAC, defaults.HAT_ENVELOPE_FAC
+#: The default hat's tets, built once by ``scripts/build_hat_mesh.py`` (pytetwild is not repeatable run to run, so
+#: every machine simulates the same hat); used whenever the surface and settings match its content key.
+SHIPPED_HAT_TETS = DEFAULT_RIG_PATH.parent / "hat_tets.npz"
 
 
 @renamed_kwargs(epsilon="envelope_fac")
@@ -39,25 +36,13 @@ def hat_tetmesh(*, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
     ``edge_length_fac`` and ``envelope_fac``: pytetwild's target edge length and envelope relative to the surface's
     bounding-box diagonal; with ``coarsen`` the defaults give the coarse (~1k tet) simulation mesh the demo hat
     uses, in which the smooth render surface is embedded. (0.06, 1e-3, ``coarsen=False``) gives a fine ~5k-tet
-    mesh that follows the surface tightly.
+    mesh that follows the surface tightly. The tets come from :data:`SHIPPED_HAT_TETS` for the default hat, else
+    from ``cache_dir`` by content hash, else pytetwild (see :func:`~kdfem.geometry.tetmesh.tetrahedralize_cached`).
     """
-    epsilon = envelope_fac
-    p = params or HatParams()
-    surf = christmas_hat(p)
-    path = None
-    if cache_dir is not None:
-        key = hashlib.sha1(repr((p, round(edge_length_fac, 6), round(epsilon, 6), coarsen)).encode()).hexdigest()
-        path = Path(cache_dir) / f"hat_tets_{key[:16]}.npz"
-        if path.exists():
-            d = np.load(path)
-            return surf, TetMesh(d["nodes"], d["tets"]), 0.0
-    t0 = time.perf_counter()
-    mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=edge_length_fac, envelope_fac=epsilon,
-                          coarsen=coarsen, where="hat")
-    dt = time.perf_counter() - t0
-    if path is not None:
-        with atomic_path(path, ".npz") as tmp:
-            np.savez(tmp, nodes=mesh.nodes, tets=mesh.tets)
+    surf = christmas_hat(params or HatParams())
+    mesh, dt = tetrahedralize_cached(surf.vertices, surf.faces, edge_length_fac=edge_length_fac,
+                                     envelope_fac=envelope_fac, coarsen=coarsen, where="hat", cache_dir=cache_dir,
+                                     shipped=[SHIPPED_HAT_TETS])
     return surf, mesh, dt
 
 

@@ -16,7 +16,8 @@ import numpy as np
 from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError, check_finite
 
-__all__ = ["TetMesh", "Embedding", "tetrahedralize", "tet_quality", "embed_surface", "load_surface",
+__all__ = ["TetMesh", "Embedding", "tetrahedralize", "tetrahedralize_cached", "tet_key", "tet_quality", "embed_surface",
+           "load_surface",
            "structured_bar"]
 
 
@@ -29,10 +30,12 @@ class TetMesh:
 
     @property
     def num_nodes(self) -> int:
+        """N, the number of nodes."""
         return len(self.nodes)
 
     @property
     def num_tets(self) -> int:
+        """T, the number of tetrahedra."""
         return len(self.tets)
 
     def volumes(self) -> np.ndarray:
@@ -202,6 +205,54 @@ def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str
     remap = np.full(len(nodes), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     return _fix_orientation(np.asarray(nodes)[used], remap[np.asarray(tets, dtype=np.int64)], where=where)
+
+
+def tet_key(vertices, faces, *, edge_length_fac: float, envelope_fac: float, coarsen: bool) -> str:
+    """Content hash (hex) of a tetrahedralisation request: the surface's float64 vertices and int64 faces, the
+    pytetwild settings, and the pytetwild version (a different mesher may mesh differently)."""
+    import hashlib
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        tw = version("pytetwild")
+    except PackageNotFoundError:  # pragma: no cover - pytetwild is a dependency
+        tw = "unknown"
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    h.update(repr((round(float(edge_length_fac), 9), round(float(envelope_fac), 9), bool(coarsen), tw)).encode())
+    return h.hexdigest()
+
+
+def tetrahedralize_cached(vertices, faces, *, edge_length_fac: float, envelope_fac: float, coarsen: bool,
+                          where: str = "surface", cache_dir=None, shipped=()) -> tuple[TetMesh, float]:
+    """:func:`tetrahedralize` once per content: (mesh, seconds spent meshing — 0 when read back).
+
+    pytetwild's output is not repeatable run to run, so the same surface and settings must give the same tets
+    from a file: ``shipped`` .npz files (e.g. the default hat's in ``meshes/``) are looked up first, then
+    ``cache_dir``/tets_<key>.npz; a new mesh is written to ``cache_dir`` (atomically) when it is given.
+    """
+    import time
+
+    from kdfaces.io.atomic import atomic_path
+
+    key = tet_key(vertices, faces, edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen)
+    candidates = [Path(p) for p in shipped]
+    if cache_dir is not None:
+        candidates.append(Path(cache_dir) / f"tets_{key[:24]}.npz")
+    for path in candidates:
+        if path.exists():
+            with np.load(path) as d:
+                if str(d["key"]) == key:
+                    return TetMesh(d["nodes"].astype(np.float64), d["tets"].astype(np.int64)), 0.0
+    t0 = time.perf_counter()
+    mesh = tetrahedralize(vertices, faces, edge_length_fac=edge_length_fac, envelope_fac=envelope_fac,
+                          coarsen=coarsen, where=where)
+    seconds = time.perf_counter() - t0
+    if cache_dir is not None:
+        with atomic_path(candidates[-1], ".npz") as tmp:
+            np.savez(tmp, nodes=mesh.nodes, tets=mesh.tets, key=np.array(key))
+    return mesh, seconds
 
 
 def load_surface(path):

@@ -48,6 +48,7 @@ class ModalBasis:
 
     @property
     def frequencies_hz(self) -> np.ndarray:
+        """Damped natural frequencies ω_i/2π [Hz], shape (k,)."""
         return np.sqrt(np.maximum(self.eigenvalues, 0.0)) / (2 * np.pi)
 
     @property
@@ -62,10 +63,12 @@ class ModalBasis:
 
     @property
     def damping_ratios(self) -> np.ndarray:
+        """ζ_i = c_i / (2√(m_i k_i)), shape (k,)."""
         return self.damping / (2 * np.sqrt(self.mass * self.stiffness))
 
     @property
     def regimes(self) -> list[str]:
+        """Damping regime of each mode: "underdamped", "critical" or "overdamped"."""
         return [str(damping_regime(k / m, c / m)) for m, k, c in zip(self.mass, self.stiffness, self.damping)]
 
 

@@ -53,7 +53,7 @@ def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = default
     edge length and envelope relative to the bounding-box diagonal. A non-closed surface or one enclosing no volume
     raises :class:`KDInputError`."""
     from ..fem.default_hat import hat_tetmesh
-    from ..geometry.tetmesh import load_surface, tetrahedralize
+    from ..geometry.tetmesh import load_surface, tetrahedralize_cached
 
     if surface is None:  # by default the same coarse simulation mesh the hat demo uses
         eps = defaults.HAT_ENVELOPE_FAC if envelope_fac is None else envelope_fac
@@ -70,7 +70,8 @@ def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = default
     if not abs(vol) > 1e-9 * diag**3:
         raise KDInputError(f"{surface}: the surface encloses zero volume ({vol:.3g} m³); its tets would have zero "
                            "volume — expected a solid object")
-    mesh = tetrahedralize(v, f, edge_length_fac=edge_length_fac, where=str(surface))
+    mesh, _ = tetrahedralize_cached(v, f, edge_length_fac=edge_length_fac, envelope_fac=1e-3, coarsen=False,
+                                    where=str(surface), cache_dir=cache_dir)
     if (mesh.volumes() <= 0).any():
         raise KDInputError(f"{surface}: tetrahedralisation produced zero-volume tets")
     return mesh, v, f, f"`{Path(surface).name}`"

@@ -47,7 +47,30 @@ def machine() -> str:
             f"warp {warp.config.version}")
 
 
-def write_markdown(path: Path, results: list[dict]) -> None:
+def _row(r: dict) -> str:
+    rate = "" if r.get("rate") is None else f"{r['rate']:.4g}"
+    return f"| {r['name']} | {r['size']} | {r['median_s']:.4g} | {rate} | {r.get('unit', '')} |"
+
+
+def merge_rows(path: Path, results: list[dict]) -> list[str]:
+    """The table rows of ``path`` with every row of a benchmark name in ``results`` replaced by the new ones (in
+    place of the first old row of that name; new names are appended)."""
+    new_names = {r["name"] for r in results}
+    rows = [line for line in path.read_text().splitlines() if line.startswith("| ") and not line.startswith("| bench")]
+    out, placed = [], set()
+    for line in rows:
+        name = line.split("|")[1].strip()
+        if name in new_names:
+            if name not in placed:
+                out += [_row(r) for r in results if r["name"] == name]
+                placed.add(name)
+            continue
+        out.append(line)
+    out += [_row(r) for r in results if r["name"] not in placed]
+    return out
+
+
+def write_markdown(path: Path, results: list[dict], *, rows: list[str] | None = None) -> None:
     lines = [
         "# Benchmarks",
         "",
@@ -58,9 +81,7 @@ def write_markdown(path: Path, results: list[dict]) -> None:
         "| benchmark | size | median [s] | rate | unit |",
         "|---|---|---:|---:|---|",
     ]
-    for r in results:
-        rate = "" if r.get("rate") is None else f"{r['rate']:.4g}"
-        lines.append(f"| {r['name']} | {r['size']} | {r['median_s']:.4g} | {rate} | {r.get('unit', '')} |")
+    lines += rows if rows is not None else [_row(r) for r in results]
     tmp = path.with_suffix(".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, path)
@@ -72,6 +93,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the results as a JSON list")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
+    ap.add_argument("--update", action="store_true",
+                    help="with --only: replace those benchmarks' rows in --out and keep the others")
     args = ap.parse_args(argv)
     benches = [(n, f) for n, f in discover() if not args.only or n.startswith(args.only)]
     if not benches:
@@ -88,6 +111,8 @@ def main(argv=None) -> int:
         print(json.dumps(results, indent=2))
     if not args.only:
         write_markdown(args.out, results)
+    elif args.update and args.out.exists():
+        write_markdown(args.out, results, rows=merge_rows(args.out, results))
     return 0
 
 

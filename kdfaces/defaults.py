@@ -13,6 +13,7 @@ __all__ = [
     "CLUSTER_RINGS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "WIDTH_S", "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
     "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "default_step",
+    "user_cache_dir",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -66,6 +67,15 @@ RAYLEIGH_BETA = 0.01
 #: The hat's simulation step [s] and KD window [s].
 HAT_STEP_S = 0.01
 HAT_WINDOW_S = 0.568
+
+
+def user_cache_dir():
+    """Where the command-line tools keep parsed rigs and tet meshes by content hash: ``$KDFACES_CACHE``, else
+    ``~/.cache/kdfaces`` (library calls cache only where they are told to)."""
+    import os
+    from pathlib import Path
+
+    return Path(os.environ.get("KDFACES_CACHE", Path.home() / ".cache" / "kdfaces"))
 
 
 def default_step(trajectory, step_s: float | None = None) -> float:

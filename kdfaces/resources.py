@@ -15,8 +15,9 @@ from .errors import KDInputError
 __all__ = ["available_memory_bytes", "memory_budget_bytes", "format_bytes", "parse_bytes", "progress_bar",
            "PROGRESS_DELAY_S"]
 
-#: A stage shows a progress bar once it has run this long [s] (short stages stay quiet).
-PROGRESS_DELAY_S = 2.0
+#: A stage shows a progress bar once it has run this long [s] (short stages stay quiet); the environment variable
+#: ``KDFACES_PROGRESS_DELAY_S`` overrides it (0 shows every bar).
+PROGRESS_DELAY_S = float(os.environ.get("KDFACES_PROGRESS_DELAY_S", 2.0))
 
 #: The share of the available memory a computation may plan to use by default.
 BUDGET_FRACTION = 0.5

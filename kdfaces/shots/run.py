@@ -196,21 +196,33 @@ def _run_command(args) -> dict:
 def run_summary(run: ShotRun, out, paths) -> dict:
     """summary.json of a run: rig, timing, KD window and deviation, IKD, outputs (paths relative to ``out``)."""
     rig, anim = run.shot.rig, run.shot.animation
+    dev = np.linalg.norm(run.kd - run.kinematic, axis=-1).max(axis=0)  # (N,) [m]
+    traj = run.shot.trajectory
     summary = {
         "shot": run.shot.name,
-        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes},
+        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes,
+                "source_unit_m": rig.source_unit_m, "extent_m": float(np.ptp(rig.neutral, axis=0).max()),
+                "parts": list(rig.part_names), "rigid_vertices": int(run.system.model.rigid_mask.sum())},
         "fps": anim.fps,
         "frames": len(run.times),
         "duration_s": anim.duration,
+        "step_s": run.step_s,
+        "channels": {"skipped": list(getattr(traj, "skipped_channels", ())),
+                     "split_to_sides": sorted(k for k, v in getattr(traj, "channel_resolution", {}).items()
+                                              if v == "sides")},
         "kd": {
             "window_s": run.window_s,
             "window_auto_s": run.window_auto_s,
             "epsilon_m": run.epsilon_m,
             "ms_per_state": run.ms_per_state,
-            "max_deviation_from_kinematic_m": float(np.linalg.norm(run.kd - run.kinematic, axis=-1).max()),
+            "max_deviation_from_kinematic_m": float(dev.max()),
         },
         "outputs": [str(Path(p).relative_to(out)) for p in paths],
     }
+    if rig.vertex_parts is not None:
+        summary["kd"]["max_deviation_by_part_m"] = {
+            name: float(dev[rig.vertex_parts == k].max()) for k, name in enumerate(rig.part_names)
+            if (rig.vertex_parts == k).any()}
     if run.ikd_result is not None:
         summary["ikd"] = ikd_summary(run)
     return summary

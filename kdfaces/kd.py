@@ -39,7 +39,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .defaults import default_step
+from .defaults import MAX_WINDOW_STEPS, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
 from .resources import format_bytes, memory_budget_bytes, progress_bar
@@ -66,7 +66,12 @@ def window_steps(window_s: float, step_s: float) -> int:
         raise KDInputError(f"window_s: expected a positive number of seconds, got {window_s}")
     if isinstance(step_s, bool) or not (np.isfinite(step_s) and step_s > 0):
         raise KDInputError(f"step_s: expected a positive number of seconds, got {step_s}")
-    return max(1, math.ceil(window_s / step_s - 1e-9))
+    n = window_s / step_s
+    if n > MAX_WINDOW_STEPS:
+        raise KDInputError(f"window_s = {window_s:.6g} s needs {math.ceil(n - 1e-9):,} steps of {step_s:.6g} s; "
+                           f"expected at most {MAX_WINDOW_STEPS:,} (a KD window lasts seconds: check the window, "
+                           "the settle time and the damping ratio)")
+    return max(1, math.ceil(n - 1e-9))
 
 
 def _check_times(trajectory, times: np.ndarray) -> None:

@@ -90,6 +90,9 @@ class _NoBar:
     def update(self, n: int = 1) -> None:
         pass
 
+    def close(self) -> None:
+        pass
+
     def set_postfix_str(self, s: str) -> None:
         pass
 

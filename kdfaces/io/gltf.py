@@ -122,8 +122,13 @@ class _Document:
         a = self._item("accessors", index, where)
         where = f"{where} (accessor {index})"
         dtype, width = _COMPONENTS.get(a.componentType), _WIDTH.get(a.type)
-        if dtype is None or width is None or a.count is None or a.count < 0:
-            raise KDInputError(f"{self.path}: {where}: unsupported componentType {a.componentType} / type {a.type}")
+        if isinstance(a.count, bool) or not isinstance(a.count, int) or a.count < 1:
+            raise KDInputError(f"{self.path}: {where}: count {a.count!r}; expected a positive number of elements")
+        if dtype is None:
+            raise KDInputError(f"{self.path}: {where}: componentType {a.componentType!r}; expected one of "
+                               f"{sorted(_COMPONENTS)}")
+        if width is None:
+            raise KDInputError(f"{self.path}: {where}: type {a.type!r}; expected one of {sorted(_WIDTH)}")
         if a.bufferView is None:
             out = np.zeros((a.count, width), dtype)
         else:

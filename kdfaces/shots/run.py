@@ -15,7 +15,7 @@ from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_kd
-from ..resources import progress_bar
+from ..resources import format_bytes, memory_budget_bytes, progress_bar
 from .shotfile import Shot, load_shot
 
 __all__ = ["ShotRun", "run_shot", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
@@ -89,6 +89,13 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     if not (window > 0):
         raise KDInputError(f"window: expected positive seconds, got {window}")
     times = shot.animation.frame_times
+    need = 4 * len(times) * model.num_vertices * 3 * 8  # x_K, x_KD, x_IKD of every frame, and one working copy
+    budget = memory_budget_bytes(max_memory_bytes)
+    if need > budget:
+        raise KDInputError(f"{shot.path}: {len(times):,} frames of {model.num_vertices:,} vertices need "
+                           f"{format_bytes(need)} for the kinematic, KD and IKD trajectories; expected at most the "
+                           f"budget of {format_bytes(budget)} (check animation.fps and the shot's length, bake long "
+                           "takes with the chunked bake, or raise --max-memory)")
     kinematic = traj.positions(times)
     t0 = _time.perf_counter()
     kd = simulate_kd(system, traj, times, window, step_s=h, max_memory_bytes=max_memory_bytes, progress=progress)

@@ -85,3 +85,21 @@ def test_sample_cache_returns_the_same_values(default_rig):
     for a, b, c in zip(first, again, tiny.evaluate(t)):
         np.testing.assert_array_equal(a, b[::-1])
         np.testing.assert_allclose(a, c, rtol=1e-13, atol=1e-15)  # BLAS blocking differs with the batch
+
+
+def test_one_off_passes_leave_the_sample_cache_alone(default_rig):
+    # the window estimate scans the whole shot and the face bake keeps its own rows: neither may fill the
+    # trajectory's sample cache (on a 19k-vertex rig that was 256 MiB of samples nobody read again)
+    from kdfaces.dynamics import FaceModel, FaceSystem
+    from kdfaces.kd import simulate_kd
+    from kdfaces.window import automatic_window
+
+    traj = KinematicTrajectory(default_rig, demo_animation())
+    system = FaceSystem(FaceModel.from_rig(default_rig))
+    window = automatic_window(system, traj).window_s
+    simulate_kd(system, traj, traj.frame_times[::10], window)
+    assert len(traj._cache) == 0
+    t = traj.frame_times[:5]
+    for a, b in zip(traj.scan(t), traj.evaluate(t)):  # the scan is the same evaluation
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-15)
+    assert len(traj._cache) == 5

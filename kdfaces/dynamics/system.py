@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import KDInputError, SimulationBlowUpError
+from ..motion.trajectory import scan_trajectory
 from .kernels import cluster_frames, track_step
 from .model import FaceModel
 
@@ -133,7 +134,8 @@ class TrajectoryBake:
         need = int(rows.max()) + steps * self.stride + 1
         if need <= self.num_rows:
             return
-        self._append(*self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1))
+        # the bake is the cache of these rows: the trajectory's own sample cache is left for others
+        self._append(*scan_trajectory(self.trajectory, self.times(np.arange(self.num_rows, need)), 1))
 
 
 @dataclass
@@ -343,7 +345,7 @@ class FaceSystem:
         if rigid.any() and state.bake is not None:
             t = state.start_times + state.steps * state.bake.h
             for i in range(0, len(t), 32):
-                x[i:i + 32, rigid] = state.bake.trajectory.evaluate(t[i:i + 32], order=0)[0][:, rigid]
+                x[i:i + 32, rigid] = scan_trajectory(state.bake.trajectory, t[i:i + 32], 0)[0][:, rigid]
         return x
 
     # --- internals ---------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import KDInputError
+from ..motion.trajectory import scan_trajectory
 from .bases import Basis
 
 __all__ = ["Slot", "Correction", "CorrectedTrajectory"]
@@ -149,7 +150,14 @@ class CorrectedTrajectory:
 
     def evaluate(self, times, order: int = 2):
         """x_K + f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays ``(T, *state_shape)``."""
-        out = list(self.base.evaluate(times, order))
+        return self._evaluate(times, order, self.base.evaluate(times, order))
+
+    def scan(self, times, order: int = 2):
+        """:meth:`evaluate` leaving the base trajectory's sample cache alone (see ``scan_trajectory``)."""
+        return self._evaluate(times, order, scan_trajectory(self.base, times, order))
+
+    def _evaluate(self, times, order, base):
+        out = list(base)
         if self.correction is not None:
             for k, fk in enumerate(self.correction.evaluate(times, order)):
                 out[k] = out[k] + fk

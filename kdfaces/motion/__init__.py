@@ -2,7 +2,7 @@
 
 from .curves import INTERPOLATIONS, KeyframeCurve
 from .joints import JointDrive, JointTrajectory, SkeletonAnimation
-from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack, scan_trajectory
 
 __all__ = ["INTERPOLATIONS", "KeyframeCurve", "JointDrive", "SkeletonAnimation", "JointTrajectory", "FaceAnimation",
-           "KinematicTrajectory", "ShapeTrack"]
+           "KinematicTrajectory", "ShapeTrack", "scan_trajectory"]

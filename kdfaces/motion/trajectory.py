@@ -21,7 +21,15 @@ from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
 
-__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning"]
+__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning", "scan_trajectory"]
+
+
+def scan_trajectory(trajectory, times, order: int = 2):
+    """``trajectory.evaluate(times, order)`` for a one-off pass over a shot: through the trajectory's ``scan`` when
+    it has one (it then leaves its sample cache alone), else its ``evaluate`` — any object with
+    ``evaluate(times, order)`` is a trajectory. ``times`` (T,) [s] → ``order + 1`` arrays ``(T, *state_shape)``."""
+    scan = getattr(trajectory, "scan", None)
+    return trajectory.evaluate(times, order) if scan is None else scan(times, order)
 
 _TOKENS = itertools.count()
 
@@ -179,8 +187,8 @@ class KinematicTrajectory:
         """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64.
 
         Samples are kept for re-use (KD windows, IKD sweeps and scrubbing re-read the same step grid) within
-        ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks. Either
-        way the memory does not grow with the number of times ever asked for.
+        ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks (as
+        :meth:`scan` does). Either way the memory does not grow with the number of times ever asked for.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "trajectory times")
@@ -189,8 +197,7 @@ class KinematicTrajectory:
         keys = np.round(t * 1e9).astype(np.int64)
         uniq, first_index, inverse = np.unique(keys, return_index=True, return_inverse=True)
         if len(uniq) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
-            parts = [self._evaluate_chunk(t[i:i + self.chunk]) for i in range(0, len(t), self.chunk)]
-            return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+            return self.scan(t, order)
         found = {}
         missing = []
         for k, i in zip(uniq.tolist(), first_index.tolist()):
@@ -211,6 +218,16 @@ class KinematicTrajectory:
                 self._cache.popitem(last=False)
         samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
         return tuple(samples[o] for o in range(order + 1))
+
+    def scan(self, times, order: int = 2):
+        """:meth:`evaluate` without the sample cache, in chunks: for one-off passes over a shot (a window estimate,
+        a bake that keeps its own rows) that would only push re-used samples out of it."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        check_finite(t, "trajectory times")
+        if order not in (0, 1, 2):
+            raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
+        parts = [self._evaluate_chunk(t[i:i + self.chunk])[:order + 1] for i in range(0, len(t), self.chunk)]
+        return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
 
     def positions(self, times) -> np.ndarray:
         """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""

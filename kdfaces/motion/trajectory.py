@@ -175,4 +175,7 @@ class KinematicTrajectory:
         if skel is not None and self.animation.skeleton.drives:
             G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
+        if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
+            r = self.animation.skeleton.root_translation(t, 2)
+            y, dy, ddy = y + r[0][:, None], dy + r[1][:, None], ddy + r[2][:, None]
         return y, dy, ddy

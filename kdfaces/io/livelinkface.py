@@ -125,7 +125,9 @@ def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolat
                            start: float = 0.0, end: float | None = None) -> FaceAnimation:
     """A :class:`FaceAnimation` from a take: one 52-channel weight track, and a head drive if angles are non-zero.
 
-    ``start``/``end`` [s] crop the take (relative to its first sample); ``fps`` defaults to the capture rate.
+    ``start``/``end`` [s] crop the take (relative to its first sample); ``fps`` defaults to the capture rate, so
+    the default simulation step puts every captured frame on the step grid. Channels a rig lacks are skipped with
+    a warning (``strict_channels=False``; see :class:`~kdfaces.motion.KinematicTrajectory`).
     """
     take = take_or_path if isinstance(take_or_path, LiveLinkTake) else read_livelinkface(take_or_path)
     t = take.times
@@ -140,5 +142,5 @@ def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolat
         drives = (JointDrive(KeyframeCurve.create(t[sel], take.head[sel], interpolation=interpolation,
                                                   where=f"{take.path} head angles")),)
     return FaceAnimation(tracks=(track,), skeleton=SkeletonAnimation(drives), start=start, end=end,
-                         fps=fps or take.rate_hz, name=Path(take.path).stem)
+                         fps=fps or take.rate_hz, name=Path(take.path).stem, strict_channels=False)
 

@@ -7,9 +7,16 @@ while the point is inside a slab (e.g. a door's depth along the walking directio
 offset − max n·p over the points inside the slab: negative means a hit.
 
 The solver (:func:`kdfaces.ikd.solve_ikd`) treats it by active sets: simulate KD over the pass, find the frames
-that violate it (by more than ``slack_m``), add a one-sided plane constraint (:func:`plane_constraint`) at the worst
-frame of each violating run on its worst point — one correction slot per time, coupled with every other slot
-through the interpolation LU as §4.2 does — solve, and repeat until no frame violates it.
+that violate it (by more than ``slack_m``), add a constraint at the worst frame of each violating run on its worst
+point — one correction slot per time, coupled with every other slot through the interpolation LU as §4.2 does —
+solve, and repeat until no frame violates it. The added constraint is, by ``target``:
+
+- ``"point"`` (default): an end-effector constraint (eq. 4–5) putting the point where it is now, moved along −n
+  onto offset − margin: it is lowered and otherwise held, like the paper's point constraint at t_i, so the
+  corrections of neighbouring slots point the same way and their interpolant stays one smooth bell;
+- ``"plane"``: a one-sided plane constraint (:func:`plane_constraint`, n·p ≤ offset − margin): only the height is
+  asked for, and the pseudo-inverse finds the least posture change for it (which may differ in kind from a point
+  constraint's, so close slots of both kinds can make f swing).
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ import numpy as np
 from .. import defaults
 from ..errors import KDInputError, check_finite
 from .bases import make_basis
-from .constraints import Constraint, plane_constraint
+from .constraints import Constraint, end_effector_constraint, plane_constraint
 
 __all__ = ["Clearance", "clearance_constraint"]
 
@@ -47,6 +54,7 @@ class Clearance:
             clearance is at least margin − slack).
         min_gap_s: constraints it adds are at least this far apart in time [s], from each other and from the
             other constraints of the solve (bells closer than that make the interpolation ill-conditioned).
+        target: ``"point"`` or ``"plane"``, the kind of constraint it adds (see the module docstring).
         label: a name for reports.
     """
 
@@ -63,6 +71,7 @@ class Clearance:
     curve: str = defaults.CURVE
     slack_m: float = 0.0
     min_gap_s: float = 0.0
+    target: str = "point"
     label: str = "clearance"
 
     kind = "clearance"
@@ -113,10 +122,10 @@ class Clearance:
         """The next active set from frames ``times`` (T,) with KD states ``X`` (T, P, 3), or None when no frame
         violates the clearance by more than ``slack_m``.
 
-        Each violating run (consecutive frames) gets a one-sided plane constraint on its worst point, at its worst
-        frame that is at least ``min_gap_s`` from every active constraint. A run with no such frame tightens the
-        nearest plane constraint this clearance added before (its offset drops by the violation), so every round
-        changes the problem."""
+        Each violating run (consecutive frames) gets a constraint (``target``) on its worst point, at its worst frame
+        that is at least ``min_gap_s`` from every active constraint. A run with no such frame tightens the nearest
+        constraint this clearance added before (its target drops by the violation), so every round changes the
+        problem."""
         worst, amount = self.violations(times, X)
         bad = amount > self.slack_m
         if not bad.any():
@@ -127,18 +136,19 @@ class Clearance:
             run = np.arange(k0, k1)
             for f in run[np.argsort(-amount[run], kind="stable")]:
                 if all(abs(times[f] - c.time_s) >= self.min_gap_s - 1e-9 for c in out):
-                    out.append(self._constraint(float(times[f]), int(worst[f]), num_points, len(out)))
+                    out.append(self._constraint(float(times[f]), int(worst[f]), X[f], num_points))
                     break
             else:
                 f = run[np.argmax(amount[run])]
-                mine = [i for i, c in enumerate(out) if c.kind == "plane" and c.meta.get("clearance") == self.label]
+                mine = [i for i, c in enumerate(out) if c.meta.get("clearance") == self.label]
                 if not mine:
                     continue
                 i = min(mine, key=lambda i: abs(out[i].time_s - times[f]))
-                out[i] = dataclasses.replace(out[i], target=out[i].target - float(amount[f]))
+                drop = float(amount[f]) * (self.normal if out[i].kind == "end_effector" else 1.0)
+                out[i] = dataclasses.replace(out[i], target=out[i].target - drop)
         return out
 
-    def _constraint(self, time_s: float, point: int, num_points: int, index: int) -> Constraint:
+    def _constraint(self, time_s: float, point: int, x: np.ndarray, num_points: int) -> Constraint:
         if self.point_indices is None:
             idx, w = np.array([point]), np.array([1.0])
         else:
@@ -146,9 +156,15 @@ class Clearance:
             keep = w != 0  # distinct indices with non-zero weight (an embedded point's tet corners)
             idx, w = idx[keep], w[keep]
             w = w / w.sum()
-        c = plane_constraint(time_s, self.normal, self.offset_m - self.margin_m, idx,
-                             make_basis(self.curve, time_s, width_s=self.width_s), weights=w,
-                             num_vertices=num_points, side="below", label=f"{self.label} @ {time_s:.3f} s")
+        basis = make_basis(self.curve, time_s, width_s=self.width_s)
+        label = f"{self.label} @ {time_s:.3f} s"
+        if self.target == "plane":
+            c = plane_constraint(time_s, self.normal, self.offset_m - self.margin_m, idx, basis, weights=w,
+                                 num_vertices=num_points, side="below", label=label)
+        else:
+            p = w @ x[idx]
+            goal = p - (p @ self.normal - (self.offset_m - self.margin_m)) * self.normal
+            c = end_effector_constraint(time_s, goal, idx, basis, weights=w, num_vertices=num_points, label=label)
         c.meta.update({"clearance": self.label, "point": point})
         return c
 
@@ -156,15 +172,18 @@ class Clearance:
 def clearance_constraint(normal, offset_m: float, *, start_s: float, end_s: float, margin_m: float = 0.005,
                          slab_axis=None, slab_m=(-np.inf, np.inf), points=None, width_s: float = defaults.WIDTH_S,
                          curve: str = defaults.CURVE, slack_m: float | None = None, min_gap_s: float | None = None,
-                         label: str = "clearance") -> Clearance:
+                         target: str = "point", label: str = "clearance") -> Clearance:
     """A :class:`Clearance`: every point below the plane n·p = ``offset_m`` [m] by ``margin_m`` [m] over
     ``[start_s, end_s]`` [s] while inside the slab ``slab_m`` [m] along ``slab_axis``.
 
     ``points``: None (every observed point) or (indices (V, k), weights (V, k)) of V points combined from observed
     ones (e.g. :class:`kdfem.geometry.tetmesh.Embedding`'s tet corners and barycentric weights). ``slack_m``
-    defaults to margin/2, ``min_gap_s`` to ``width_s``/3.
+    defaults to margin/2, ``min_gap_s`` to ``width_s``/3; ``target`` is "point" or "plane" (the kind of constraint
+    added at a violating frame, see :mod:`kdfaces.ikd.clearance`).
     """
     where = label
+    if target not in ("point", "plane"):
+        raise KDInputError(f"{where}: target must be 'point' or 'plane', got {target!r}")
     n = np.asarray(normal, dtype=np.float64)
     if n.shape != (3,) or not np.isfinite(n).all() or np.linalg.norm(n) == 0:
         raise KDInputError(f"{where}: normal: expected three finite numbers, not all zero")
@@ -199,4 +218,4 @@ def clearance_constraint(normal, offset_m: float, *, start_s: float, end_s: floa
     return Clearance(normal=n / np.linalg.norm(n), offset_m=float(offset_m), margin_m=float(margin_m),
                      start_s=float(start_s), end_s=float(end_s), slab_axis=axis, slab_m=(lo, hi), point_indices=idx,
                      point_weights=w, width_s=float(width_s), curve=curve, slack_m=slack, min_gap_s=gap,
-                     label=label)
+                     target=target, label=label)

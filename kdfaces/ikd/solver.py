@@ -48,6 +48,8 @@ __all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "i
 UPDATES = ("paper", "secant")
 #: Largest correction of a joint-angle state [rad] before a target is reported out of reach.
 MAX_CORRECTION_RAD = 0.5 * np.pi
+#: Largest correction of a joint-angle *rate* (a velocity slot's Δθ̇) [rad/s] before a target is out of reach.
+MAX_CORRECTION_RAD_PER_S = 4.0 * np.pi
 
 
 class OffGridConstraintWarning(UserWarning):
@@ -394,7 +396,10 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
         corr.update()
         pairs = kd.at(traj_f, constraints)
     tol = np.array([tolerance_mps if c.kind == "velocity" else tolerance_m for c in constraints])
-    limit = MAX_CORRECTION_RAD if lift.through else max_correction_m
+    # per slot: π/2 rad (4π rad/s for a velocity slot) on a joint-angle state, else max_correction_m [m or m/s]
+    limit = np.array([(MAX_CORRECTION_RAD_PER_S if sl.kind != "position" else MAX_CORRECTION_RAD)
+                      if lift.through else max_correction_m for sl in corr.slots])
+    limit = limit.reshape(-1, *([1] * (len(lift.state_shape) - 1)))
     res, err = constraint_errors(constraints, pairs, h)
     history = [err]
     responses: list = [None] * len(constraints)
@@ -441,7 +446,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
             reason = "diverged"
             break
         norms = np.linalg.norm(corr.values, axis=-1)
-        if norms.max() > limit:
+        if (norms > limit).any():
             # the target needs a larger edit than allowed: clamp to the allowed size and report the residual there
             corr.values *= np.minimum(1.0, limit / np.maximum(norms, 1e-300))[..., None]
             corr.update()

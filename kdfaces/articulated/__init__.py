@@ -5,10 +5,11 @@ from .chains import ARM_PATH, NECK_MASSES_KG, arm_chain_model, neck_chain_model
 from .control import INERTIAS, TIMINGS, OnTheBeat, time_constants
 from .engines import DEFAULT_ENGINE, ENGINES, MuJoCoEngine, NewtonEngine, make_engine
 from .model import GRAVITY_Y, ArticulatedModel, chain_axes, segment_inertia
-from .system import Keyframe, SkeletalSystem, simulate_keyframes
+from .system import KDJointTrajectory, Keyframe, SkeletalSystem, kd_joint_trajectory, simulate_keyframes
 
 __all__ = [
     "ARM_PATH", "NECK_MASSES_KG", "arm_chain_model", "neck_chain_model", "INERTIAS", "TIMINGS", "OnTheBeat",
     "time_constants", "DEFAULT_ENGINE", "ENGINES", "MuJoCoEngine", "NewtonEngine", "make_engine", "GRAVITY_Y",
     "ArticulatedModel", "chain_axes", "segment_inertia", "Keyframe", "SkeletalSystem", "simulate_keyframes",
+    "KDJointTrajectory", "kd_joint_trajectory",
 ]

@@ -27,7 +27,7 @@ from .control import OnTheBeat
 from .engines import DEFAULT_ENGINE, make_engine
 from .model import ArticulatedModel, chain_axes
 
-__all__ = ["SkeletalSystem", "Keyframe", "simulate_keyframes", "MARKER_M"]
+__all__ = ["SkeletalSystem", "Keyframe", "simulate_keyframes", "MARKER_M", "KDJointTrajectory", "kd_joint_trajectory"]
 
 #: Distance of the frame markers from each pivot [m].
 MARKER_M = 0.1
@@ -278,3 +278,60 @@ def simulate_keyframes(model: ArticulatedModel, start_angles, keyframes: list[Ke
             qds.append(qd[0])
         prev = kf.time_s
     return np.array(ts), np.array(qs), np.array(qds)
+
+
+class KDJointTrajectory:
+    """θ_KD(t): the skeletal KD joint angles of a trajectory, as a joint-angle trajectory (``evaluate``, ``version``,
+    ``state_shape``, ``skeleton``) that can drive a face (:class:`~kdfaces.motion.KinematicTrajectory` ``joints=``)
+    or an attached object (the hat reads its head through it).
+
+    The KD states are simulated once on the grid ``start + k·step_s`` (one batch, history-free windows of
+    ``window_s``) and interpolated by a C² cubic spline, whose derivatives give θ̇ and θ̈. Times outside the shot hold
+    the end values; the root translation is the base trajectory's.
+    """
+
+    def __init__(self, system: SkeletalSystem, trajectory, window_s: float, *, step_s: float | None = None):
+        from scipy.interpolate import CubicSpline
+
+        from ..defaults import default_step
+        from ..kd import simulate_kd
+        from ..window import grid_times
+
+        self.base, self.system, self.window_s = trajectory, system, float(window_s)
+        self.step_s = default_step(trajectory, step_s)
+        self.times = grid_times(trajectory, self.step_s)
+        X = simulate_kd(system, trajectory, self.times, window_s, step_s=self.step_s)
+        self.angles = np.array([system.angles_from_points(x) for x in X])  # (T, J, 3)
+        self._spline = CubicSpline(self.times, self.angles.reshape(len(self.times), -1), axis=0)
+        self.skeleton = system.model.skeleton
+        self.start, self.end, self.fps = trajectory.start, trajectory.end, getattr(trajectory, "fps", 1 / self.step_s)
+        self.version = ("kd-joints", getattr(trajectory, "version", id(trajectory)), self.window_s, self.step_s)
+
+    @property
+    def state_shape(self) -> tuple[int, int]:
+        """(J, 3)."""
+        return self.angles.shape[1:]
+
+    def evaluate(self, times, order: int = 2):
+        """θ_KD and derivatives at ``times`` (T,) → ``order + 1`` arrays (T, J, 3) [rad, rad/s, rad/s²]."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        tc = np.clip(t, self.times[0], self.times[-1])
+        inside = (t >= self.times[0]) & (t <= self.times[-1])
+        out = []
+        for k in range(order + 1):
+            v = self._spline(tc, k).reshape(len(t), *self.state_shape)
+            if k:
+                v[~inside] = 0.0
+            out.append(v)
+        return tuple(out)
+
+    def root_translation(self, times, order: int = 2):
+        """The base trajectory's root translation (kinematic)."""
+        from ..motion.joints import root_translation
+
+        return root_translation(self.base, times, order)
+
+
+def kd_joint_trajectory(system: SkeletalSystem, trajectory, window_s: float, *, step_s: float | None = None):
+    """θ_KD(t) of ``trajectory`` under ``system`` as a :class:`KDJointTrajectory`."""
+    return KDJointTrajectory(system, trajectory, window_s, step_s=step_s)

@@ -271,7 +271,7 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
         a2.bar(kt + off, 100 * d["overshoot"], width=2 * w, label=name)
     a1.axhline(0.0, color="k", lw=0.8)
     a1.set_ylabel("reached 90 % late [ms]")
-    a1.set_title(f"On the Beat Fig. 8: keyframe timing, hinges moving ≥ {TIMING_MIN_STEP_DEG:g}° (mean |error| "
+    a1.set_title(f"On the Beat Fig. 8: keyframe timing, hinges moving ≥ {TIMING_MIN_STEP_DEG:g}°\n(mean |error| "
                  f"composite {1e3 * comp['mean_abs_timing_error_s']:.0f} ms, local "
                  f"{1e3 * loc['mean_abs_timing_error_s']:.0f} ms)", fontsize=9)
     a1.legend(fontsize=8)

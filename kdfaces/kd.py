@@ -39,10 +39,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .budget import format_bytes, memory_budget_bytes
-from .defaults import default_step
+from .defaults import MAX_WINDOW_STEPS, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
+from .resources import format_bytes, memory_budget_bytes, progress_bar
 
 __all__ = ["KDSystem", "window_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
 
@@ -66,7 +66,12 @@ def window_steps(window_s: float, step_s: float) -> int:
         raise KDInputError(f"window_s: expected a positive number of seconds, got {window_s}")
     if isinstance(step_s, bool) or not (np.isfinite(step_s) and step_s > 0):
         raise KDInputError(f"step_s: expected a positive number of seconds, got {step_s}")
-    return max(1, math.ceil(window_s / step_s - 1e-9))
+    n = window_s / step_s
+    if n > MAX_WINDOW_STEPS:
+        raise KDInputError(f"window_s = {window_s:.6g} s needs {math.ceil(n - 1e-9):,} steps of {step_s:.6g} s; "
+                           f"expected at most {MAX_WINDOW_STEPS:,} (a KD window lasts seconds: check the window, "
+                           "the settle time and the damping ratio)")
+    return max(1, math.ceil(n - 1e-9))
 
 
 def _check_times(trajectory, times: np.ndarray) -> None:
@@ -130,17 +135,19 @@ def _batches(system, t0: np.ndarray, n: int, h: float, origin: float, budget: in
     return out
 
 
-def _run(system, trajectory, t0: np.ndarray, n: int, h: float) -> np.ndarray:
+def _run(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None) -> np.ndarray:
     _prepare(system, trajectory, t0, n, h)
     state = system.initial_state(trajectory, t0)
     for k in range(n):
         system.step(state, trajectory, t0 + k * h, h)
+        if progress is not None:
+            progress.update(len(t0))
     return system.observe(state)
 
 
 @renamed_kwargs(window="window_s", h="step_s")
 def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s: float | None = None,
-                max_memory_bytes: int | None = None) -> np.ndarray:
+                max_memory_bytes: int | None = None, progress: bool = False) -> np.ndarray:
     """KD states at ``times`` (T,) [s] with window δ = ``window_s`` [s] → ``system.observe`` of the batch, (T, P, 3).
 
     ``step_s`` [s] defaults to the trajectory's frame interval. A single time is the scrub path; many times are one
@@ -148,6 +155,7 @@ def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s:
     there). Windows whose starts share a phase on the step grid are simulated together, and a system that
     estimates its memory (``memory_bytes``) gets batches that fit ``max_memory_bytes`` (default half the available
     memory): each KD state is its own simulation, so the result does not depend on how the batch is split.
+    ``progress`` shows a bar over the state-steps on stderr when the call runs longer than two seconds.
     """
     t = _times(times)
     _check_times(trajectory, t)
@@ -156,15 +164,16 @@ def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s:
     t0 = t - n * h
     budget = memory_budget_bytes(max_memory_bytes)
     batches = _batches(system, t0, n, h, float(getattr(trajectory, "start", 0.0)), budget)
-    if len(batches) == 1 and np.array_equal(batches[0], np.arange(len(t))):
-        return _run(system, trajectory, t0, n, h)
-    out = None
-    for idx in batches:
-        x = _run(system, trajectory, t0[idx], n, h)
-        if out is None:
-            out = np.empty((len(t), *x.shape[1:]), dtype=x.dtype)
-        out[idx] = x
-    return out
+    with progress_bar("KD states", n * len(t), progress) as bar:
+        if len(batches) == 1 and np.array_equal(batches[0], np.arange(len(t))):
+            return _run(system, trajectory, t0, n, h, bar)
+        out = None
+        for idx in batches:
+            x = _run(system, trajectory, t0[idx], n, h, bar)
+            if out is None:
+                out = np.empty((len(t), *x.shape[1:]), dtype=x.dtype)
+            out[idx] = x
+        return out
 
 
 @renamed_kwargs(h="step_s", start="start_s")

@@ -4,22 +4,22 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 from kdfaces import defaults
-from kdfaces.cli import configure_output
-from kdfaces.errors import KDError
+from kdfaces.cli import command
 
 __all__ = ["main", "build_parser"]
 
 
 def _demo(args) -> dict:
+    from kdfaces.defaults import user_cache_dir
+
     from .demo import run_hat_demo
 
     return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
-                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads)
+                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads,
+                        cache_dir=user_cache_dir() / "tets")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,13 +69,15 @@ def _door(args) -> dict:
 
 def _window(args) -> dict:
     """The ``kdfem window`` handler: runs :func:`~kdfem.modal.window.window_report`; returns the window.json dict."""
+    from kdfaces.defaults import user_cache_dir
+
     from .modal.window import window_report
 
     run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max,
                         rayleigh_alpha=args.alpha, rayleigh_beta=args.beta, edge_length_fac=args.edge_length_fac,
                         scale=args.scale, attach_distance_m=args.attach_distance, attach_below_m=args.attach_below,
                         modes=args.modes, nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride,
-                        progress=True)
+                        progress=True, cache_dir=user_cache_dir() / "tets")
     return run.result
 
 
@@ -107,19 +109,8 @@ def _add_window_parser(subparsers):
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    configure_output(verbose=args.verbose)
-    try:
-        summary = args.func(args)
-    except KDError as e:
-        print(f"kdfem: error: {e}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        name = "window.json" if args.command == "window" else "summary.json"
-        print(f"kdfem {args.command}: wrote {Path(args.out) / name}")
-    return 0
+    """``kdfem …``: parse ``argv`` and run the command (see :func:`kdfaces.cli.execute`); returns the exit status."""
+    return command("kdfem", build_parser, argv, renders=lambda args: True)
 
 
 if __name__ == "__main__":

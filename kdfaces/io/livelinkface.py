@@ -102,9 +102,18 @@ def read_livelinkface(path) -> LiveLinkTake:
         return v
 
     weights = np.stack([column(col[n], n) for n in ARKIT_NAMES], axis=1)
+    bad = np.abs(weights - 0.5) > 1.5  # weights live in [0, 1]; capture noise goes a little beyond, never this far
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        raise KDInputError(f"{p}: column {ARKIT_NAMES[c]!r}, row {r + 2}: weight {weights[r, c]:.6g}; expected a "
+                           "blend-shape weight in [0, 1]")
     head = None
     if all(h in header for h in _HEAD):
         head = np.stack([column(header.index(h), h) for h in _HEAD], axis=1)
+        if (np.abs(head) > np.pi + 1e-6).any():
+            r, c = np.argwhere(np.abs(head) > np.pi + 1e-6)[0]
+            raise KDInputError(f"{p}: column {_HEAD[c]!r}, row {r + 2}: {head[r, c]:.6g}; expected an angle in "
+                               "radians within ±π")
     # duplicated timecodes (the app repeats the first sample) keep the last row; order by time
     order = np.argsort(times, kind="stable")
     times, weights = times[order], weights[order]

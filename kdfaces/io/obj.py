@@ -107,9 +107,34 @@ def _is_numbers(tokens) -> bool:
         return False
 
 
+def _contiguous_vertices(data: bytes) -> np.ndarray | None:
+    """The vertices of an OBJ whose ``v x y z`` lines form one block (what exporters write), parsed in one go; None
+    when the layout is anything else (the general parser then handles it)."""
+    first = 0 if data.startswith(b"v ") else data.find(b"\nv ") + 1
+    if first <= 0 and not data.startswith(b"v "):
+        return None
+    last = data.rfind(b"\nv ")
+    end = data.find(b"\n", last + 1) if last >= 0 else data.find(b"\n")
+    block = data[first:end if end >= 0 else len(data)]
+    nlines = block.count(b"\n") + 1
+    if nlines != data.count(b"\nv ") + data.startswith(b"v "):
+        return None
+    tokens = block.split()
+    if len(tokens) != 4 * nlines or set(tokens[0::4]) != {b"v"}:
+        return None
+    try:
+        return np.array(tokens, dtype=object).reshape(-1, 4)[:, 1:].astype(np.float64)
+    except ValueError:
+        return None
+
+
 def read_obj_vertices(path, *, scale: float = 1.0) -> np.ndarray:
     """Only the vertices (V, 3) [file units × ``scale``] of an OBJ, in file order (fast: faces are not parsed)."""
     p, data = _read(path)
+    fast = _contiguous_vertices(data)
+    if fast is not None:
+        check_finite(fast, f"{p} vertices")
+        return fast * scale
     lines = [line for line in data.split(b"\n") if line[:2] == b"v " or line[:2] == b"v\t"]
     if not lines:
         raise KDInputError(f"{p}: no vertices ('v' lines) found")
@@ -218,6 +243,21 @@ def write_obj_mesh(path, vertices: np.ndarray, counts: np.ndarray, corners: np.n
             np.savetxt(fh, np.asarray(uvs, dtype=np.float64), fmt="vt %.9g %.9g")
         if normals and len(counts):
             np.savetxt(fh, vertex_normals(v, triangulate(counts, corners)), fmt="vn %.6g %.6g %.6g")
+        if groups is None and len(counts) and (counts == counts[0]).all():  # one polygon size: one vectorised write
+            c = int(counts[0])
+            v1 = (corners + 1).reshape(-1, c)
+            if uvs is None and not normals:
+                cols, fmt = v1, " ".join(["%d"] * c)
+            elif uvs is None:
+                cols, fmt = np.stack([v1, v1], axis=2).reshape(len(v1), -1), " ".join(["%d//%d"] * c)
+            elif not normals:
+                t1 = np.arange(1, len(corners) + 1).reshape(-1, c)
+                cols, fmt = np.stack([v1, t1], axis=2).reshape(len(v1), -1), " ".join(["%d/%d"] * c)
+            else:
+                t1 = np.arange(1, len(corners) + 1).reshape(-1, c)
+                cols, fmt = np.stack([v1, t1, v1], axis=2).reshape(len(v1), -1), " ".join(["%d/%d/%d"] * c)
+            np.savetxt(fh, cols, fmt="f " + fmt)
+            return Path(path)
         ends = np.cumsum(counts)
         tokens = (corners + 1).astype(str)
         if uvs is not None:

@@ -114,8 +114,13 @@ class KinematicTrajectory:
                           "skipped (map them in [animation.map], or set strict = true to make this an error)",
                           UnmappedChannelsWarning, stacklevel=2)
         self.skipped_channels = tuple(skipped)
+        self._joint_drives = bool(animation.skeleton.drives)
         if animation.skeleton.drives and rig.skeleton is None:
-            raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+            if strict:
+                raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+            warnings.warn(f"{where}: rig {rig.name!r} has no skeleton, so the animation's head rotations are ignored",
+                          UnmappedChannelsWarning, stacklevel=2)
+            self._joint_drives = False
         #: identifies the content for caches (rig and animation are immutable, so one token per trajectory)
         self.version = ("kinematic", next(_TOKENS))
         self._joints = None

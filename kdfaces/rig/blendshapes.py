@@ -29,7 +29,8 @@ class BlendshapeRig:
         skeleton: optional neck/head joints and skin weights.
         name: a label for reports.
         polygons: the source mesh's polygons as (counts (P,), corner vertex indices (Σ counts,)), int64, or None
-            (then the triangles are the polygons). Simulation and renders use ``faces``; exports keep quads.
+            (then the triangles are the polygons). Simulation and renders use ``faces`` (the loaders make them the
+            polygons' fan triangulation, :func:`kdfaces.io.obj.triangulate`); exports keep quads.
         uvs: texture coordinates per polygon corner, shape (Σ counts, 2), float64, or None.
         part_names: names of the mesh's parts (OBJ groups/materials, glTF primitives, or connected pieces).
         vertex_parts: part index of each vertex, shape (N,), int64 (-1: none), or None.

@@ -25,6 +25,14 @@ RENAMED_KEYS = {"dynamics": {"damping": "damping_mode"}, "solver": {"damping": "
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+# Physical plausibility: ranges a face shot stays within (a value outside is a typo or a unit mix-up, and some would
+# ask for terabytes or hours of simulation); the message states the range.
+Seconds = Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
+TimeS = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+Weight = Annotated[float, Field(ge=-2, le=2, allow_inf_nan=False)]
+Degrees = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
+Metres = Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)]
+Speed = Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False)]
 Interp = Literal["ease", "linear", "catmull-rom", "hermite"]
 
 
@@ -37,25 +45,25 @@ class RigTable(_Table):
 
     source: str = "default"
     units: Literal["m", "dm", "cm", "mm"] | None = None
-    scale: Positive | None = None
+    scale: Annotated[float, Field(gt=0, le=1e3, allow_inf_nan=False)] | None = None
 
 
 class TrackTable(_Table):
     """``[[animation.tracks]]``: keys of some shapes' weights."""
 
     shapes: Annotated[list[str], Field(min_length=1)]
-    times_s: Annotated[list[Finite], Field(min_length=1)]
-    values: Annotated[list[list[Finite]], Field(min_length=1)]
+    times_s: Annotated[list[TimeS], Field(min_length=1)]
+    values: Annotated[list[list[Weight]], Field(min_length=1)]
     interpolation: Interp = "ease"
 
 
 class HeadTable(_Table):
     """``[animation.head]``: keys of the head's yaw, pitch and roll [degrees]."""
 
-    times_s: Annotated[list[Finite], Field(min_length=1)]
-    yaw_deg: list[Finite] | None = None
-    pitch_deg: list[Finite] | None = None
-    roll_deg: list[Finite] | None = None
+    times_s: Annotated[list[TimeS], Field(min_length=1)]
+    yaw_deg: list[Degrees] | None = None
+    pitch_deg: list[Degrees] | None = None
+    roll_deg: list[Degrees] | None = None
     interpolation: Interp = "ease"
 
 
@@ -63,9 +71,9 @@ class AnimationTable(_Table):
     """``[animation]``: the built-in demo, keys, or a Live Link Face CSV capture."""
 
     source: str = "demo"
-    fps: Positive | None = None
-    start_s: Finite | None = None
-    end_s: Finite | None = None
+    fps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
+    start_s: TimeS | None = None
+    end_s: TimeS | None = None
     tracks: list[TrackTable] = []
     head: HeadTable | None = None
     map: dict[str, str | list[str] | Literal[False]] = {}
@@ -75,8 +83,8 @@ class AnimationTable(_Table):
 class SettleMapTable(_Table):
     """A per-vertex settle-time map: ``stiff_s`` over bone, ``loose_s`` in cheeks and lips."""
 
-    stiff_s: Positive
-    loose_s: Positive
+    stiff_s: Seconds
+    loose_s: Seconds
 
 
 class PartTable(_Table):
@@ -84,19 +92,19 @@ class PartTable(_Table):
     its own settle time."""
 
     rigid: bool | None = None
-    settle_time_s: Positive | None = None
+    settle_time_s: Seconds | None = None
 
 
 class DynamicsTable(_Table):
     """``[dynamics]``: the face's PD tracking, shape matching, KD window and step."""
 
-    settle_time_s: Positive | SettleMapTable = defaults.SETTLE_TIME_S
-    damping_ratio: Positive = defaults.DAMPING_RATIO
+    settle_time_s: Seconds | SettleMapTable = defaults.SETTLE_TIME_S
+    damping_ratio: Annotated[float, Field(ge=1e-3, le=100, allow_inf_nan=False)] = defaults.DAMPING_RATIO
     shape_matching_alpha: Annotated[float, Field(ge=0, le=1)] = defaults.SHAPE_MATCHING_ALPHA
     damping_mode: Literal["relative", "absolute"] = defaults.DAMPING_MODE
-    window_s: Literal["auto"] | Positive = defaults.WINDOW_S
-    step_s: Literal["frame"] | Positive = "frame"
-    areal_density_kg_m2: Positive = defaults.AREAL_DENSITY_KG_M2
+    window_s: Literal["auto"] | Seconds = defaults.WINDOW_S
+    step_s: Literal["frame"] | Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = "frame"
+    areal_density_kg_m2: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = defaults.AREAL_DENSITY_KG_M2
     auto_rigid: bool = True
     parts: dict[str, PartTable] = {}
 
@@ -105,24 +113,25 @@ class TargetTable(_Table):
     """A constraint's target: a pose (weights, head angles [deg] or an OBJ), offset by ``offset_m``, or a velocity or
     end-effector point."""
 
-    weights: dict[str, Finite] | None = None
-    head_deg: Vec3 | None = None
+    weights: dict[str, Weight] | None = None
+    head_deg: Annotated[list[Degrees], Field(min_length=3, max_length=3)] | None = None
     obj: str | None = None
-    offset_m: Vec3 | None = None
-    velocity_mps: Vec3 | None = None
-    point_m: Vec3 | None = None
+    offset_m: Annotated[list[Metres], Field(min_length=3, max_length=3)] | None = None
+    velocity_mps: Annotated[list[Speed], Field(min_length=3, max_length=3)] | None = None
+    point_m: Annotated[list[Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False)]],
+                      Field(min_length=3, max_length=3)] | None = None
 
 
 class ConstraintTable(_Table):
     """``[[constraints]]``: what a KD state must meet at ``time_s``."""
 
-    time_s: Finite
+    time_s: TimeS
     kind: Literal["pose", "subset", "velocity", "end_effector"]
     target: Literal["kinematic"] | TargetTable = "kinematic"
     group: str | Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] | None = None
-    width_s: Positive = defaults.WIDTH_S
+    width_s: Seconds = defaults.WIDTH_S
     curve: Literal["gaussian", "poly", "asymmetric"] = defaults.CURVE
-    ease_out_s: Positive | None = None
+    ease_out_s: Seconds | None = None
     label: str | None = None
 
 
@@ -131,10 +140,10 @@ class SolverTable(_Table):
 
     update: Literal["secant", "paper"] = defaults.SOLVER_UPDATE
     step_scale: Annotated[float, Field(gt=0, le=1)] = defaults.STEP_SCALE
-    tolerance_m: Positive = defaults.TOLERANCE_M
-    tolerance_mps: Positive = defaults.TOLERANCE_MPS
+    tolerance_m: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = defaults.TOLERANCE_M
+    tolerance_mps: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = defaults.TOLERANCE_MPS
     max_iterations: Annotated[int, Field(ge=1, le=1000)] = defaults.MAX_ITERATIONS
-    max_correction_m: Positive = defaults.MAX_CORRECTION_M
+    max_correction_m: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = defaults.MAX_CORRECTION_M
     snap_to_frames: bool = False
 
 

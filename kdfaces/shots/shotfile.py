@@ -55,6 +55,7 @@ Paths inside a shot file are relative to the file. Every error names the file an
 from __future__ import annotations
 
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -187,7 +188,10 @@ class Shot:
         group = vertex_group(self.rig, c["group"], where=f"{where}.group") if c["group"] is not None else None
         if kind in ("pose", "subset", "end_effector"):
             if tt.get("obj") is not None:
-                pose, _ = read_obj(self.path.parent / tt["obj"], scale=self.rig.source_unit_m)
+                try:
+                    pose, _ = read_obj(self.path.parent / tt["obj"], scale=self.rig.source_unit_m)
+                except KDInputError as e:
+                    raise KDInputError(f"{where}.target.obj: {e}") from None
                 if pose.shape != (n, 3):
                     raise KDInputError(f"{where}.target.obj: {len(pose)} vertices, rig has {n}")
             else:
@@ -333,11 +337,26 @@ def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cach
         units = rig_units if rig_units is not None else (f.rig.units if rig is None else None)
         scale = f.rig.scale if rig is None and rig_units is None else None
         rig_path = src if src == "default" or rig is not None else path.parent / src
-        rig_obj = load_rig(rig_path, units=units, scale=scale, cache_dir=cache_dir)
-    anim = _animation(f.animation, path.parent, f"{where}: animation", rig_obj)
+        try:
+            rig_obj = load_rig(rig_path, units=units, scale=scale, cache_dir=cache_dir)
+        except KDInputError as e:
+            raise KDInputError(f"{where}: rig.source: {e}") from None
+    try:
+        anim = _animation(f.animation, path.parent, f"{where}: animation", rig_obj)
+    except KDInputError as e:
+        if str(e).startswith(where):
+            raise
+        raise KDInputError(f"{where}: animation.source: {e}") from None
     dyn = f.dynamics.model_dump()
     dyn["parts"] = {k: v.model_dump() for k, v in f.dynamics.parts.items()}
     strict = True if anim.strict_channels else f.animation.strict
+    step = f.dynamics.step_s
+    if step != "frame" and step > anim.duration:
+        raise KDInputError(f"{where}: dynamics.step_s: {step:g} s is longer than the shot ({anim.duration:g} s); "
+                           "expected a step of at most the frame interval")
+    if step != "frame" and step > 1.0 / anim.fps * (1 + 1e-9):
+        warnings.warn(f"{where}: dynamics.step_s = {step:g} s is longer than the frame interval "
+                      f"{1.0 / anim.fps:g} s: frames between steps are reached by partial steps", stacklevel=3)
     shot = Shot(path=path, name=f.name or path.stem, rig=rig_obj, animation=anim, dynamics=dyn,
                 solver=f.solver.model_dump(), constraint_tables=[c.model_dump() for c in f.constraints],
                 channel_map=dict(f.animation.map), strict_channels=strict)

@@ -1,4 +1,5 @@
-"""Resource budgets: estimate memory before allocating, and split work so it stays within a budget.
+"""Resources: estimate memory before allocating and split work so it stays within a budget; report progress of
+long stages.
 
 The default budget is half of the memory the machine has available now (``MemAvailable``), so a bake never
 competes with the rest of the machine for the other half; every entry point takes an explicit ``max_memory_bytes``
@@ -11,7 +12,12 @@ import os
 
 from .errors import KDInputError
 
-__all__ = ["available_memory_bytes", "memory_budget_bytes", "format_bytes", "parse_bytes"]
+__all__ = ["available_memory_bytes", "memory_budget_bytes", "format_bytes", "parse_bytes", "progress_bar",
+           "PROGRESS_DELAY_S"]
+
+#: A stage shows a progress bar once it has run this long [s] (short stages stay quiet); the environment variable
+#: ``KDFACES_PROGRESS_DELAY_S`` overrides it (0 shows every bar).
+PROGRESS_DELAY_S = float(os.environ.get("KDFACES_PROGRESS_DELAY_S", 2.0))
 
 #: The share of the available memory a computation may plan to use by default.
 BUDGET_FRACTION = 0.5
@@ -63,3 +69,35 @@ def parse_bytes(text: str, *, where: str = "--max-memory") -> int:
     if not value > 0:
         raise KDInputError(f"{where}: expected a positive size, got {text!r}")
     return int(value)
+
+
+def progress_bar(desc: str, total: int, enabled: bool):
+    """A tqdm bar on stderr for a stage of ``total`` units, shown only once the stage has run
+    :data:`PROGRESS_DELAY_S` seconds; a do-nothing stand-in when not ``enabled``. Use as a context manager and call
+    ``update(n)``."""
+    if not enabled:
+        return _NoBar()
+    import sys
+
+    from tqdm import tqdm
+
+    tty = sys.stderr.isatty()
+    return tqdm(total=int(total), desc=desc, delay=PROGRESS_DELAY_S, leave=not tty, dynamic_ncols=True,
+                mininterval=0.1 if tty else 5.0, file=sys.stderr)
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def set_postfix_str(self, s: str) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False

@@ -263,8 +263,7 @@ def solve_ikd(system, trajectory, constraints: list, *, window_s: float, step_s:
         tolerance_m / tolerance_mps: stop when every constraint's max-vertex error is below these [m, m/s].
         max_iterations: sweeps over all constraints; max_correction_m: largest per-vertex ``|Δx|`` [m] (``|Δẋ|`` [m/s];
             π/2 rad, or 4π rad/s for a velocity slot, on a joint-angle state); a target that needs more is reported
-            out of reach, with the
-            residual of the clamped correction.
+            out of reach, with the residual of the clamped correction.
         snap_to_frames: move constraints that fall between frames onto the nearest frame (else they warn with
             :class:`OffGridConstraintWarning`).
         max_wall_s: stop after this long [s] (reason "time_limit"), whatever the iterations left.

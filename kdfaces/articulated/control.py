@@ -9,7 +9,7 @@ Every control step, for every hinge i of the chain (root first):
    hinges' torques give the subtree, projected on s_i and turned into the torque m_i (a_i·s_i) that carries the
    hinge's out-board links along;
 4. gravity compensation (the torque that holds the out-board composite against gravity), and torque limits
-   (|τ| ≤ τ_max per hinge; the number of clipped hinge-steps is counted).
+   (``|τ| ≤ τ_max`` per hinge; the number of clipped hinge-steps is counted).
 
 The number of time constants n in t̂: On the Beat writes n = −1/ln f for removing the fraction f (0.9) of the error
 in t̂ (``timing="paper"``, n = 9.49). A critically damped step from rest, e(t) = e₀(1 + t/λ)e^{−t/λ}, then removes

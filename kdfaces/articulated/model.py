@@ -96,7 +96,7 @@ class ArticulatedModel:
         coms: link centres of mass in the rest pose [m], shape (J, 3).
         inertias: link inertias about their centres of mass, rest-pose world axes [kg·m²], shape (J, 3, 3).
         gravity: (3,) [m/s²], default −9.81 along y.
-        torque_limits: largest |τ| per hinge [N·m], shape (J, 3) (inf: unlimited).
+        torque_limits: largest ``|τ|`` per hinge [N·m], shape (J, 3) (inf: unlimited).
         points: named points carried by links, ``{name: (joint, rest position (3,) [m])}`` (e.g. the fist).
         name: for reports.
     """

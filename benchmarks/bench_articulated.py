@@ -68,7 +68,7 @@ def bench_neck_kd(repeats: int):
         how = "implicit joint damping" if name == "mujoco" else "explicit damping"
         ok = "stable" if dev < 30 else "UNSTABLE (diverges)"
         out.append({"name": f"neck_kd_{name}",
-                    "size": f"64 windows δ=0.3 s, 5 ms substeps, {how}: {ok}, max |θ_KD−θ_K| {dev:.3g}°",
+                    "size": f"64 windows δ=0.3 s, 5 ms substeps, {how}: {ok}, max deviation from θ_K {dev:.3g}°",
                     "median_s": statistics.median(walls), "rate": 1e3 * statistics.median(walls) / 64,
                     "unit": "ms per KD state"})
     return out

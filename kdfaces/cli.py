@@ -242,7 +242,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_render_parser(sub)
     add_view_parser(sub)
     add_export_rig_parser(sub)
+    punch = sub.add_parser("punch", help="skeletal KD on MuJoCo: the relaxed punch, its IKD, On the Beat timing")
+    punch.add_argument("--out", default="kd-out/punch", help="output folder (default kd-out/punch)")
+    punch.add_argument("--no-movie", dest="movie", action="store_false", help="skip movie.mp4")
+    punch.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    punch.set_defaults(func=_punch)
     return ap
+
+
+def _punch(args) -> dict:
+    from .articulated.punch import run_punch
+
+    return run_punch(args.out, movie=args.movie)
 
 
 def main(argv=None) -> int:

@@ -1,4 +1,5 @@
-"""The ``kdfem`` command: ``kdfem demo`` (the floppy hat) and ``kdfem window [MESH]`` (the modal window report)."""
+"""The ``kdfem`` command: ``kdfem demo`` (the floppy hat), ``kdfem window [MESH]`` (the modal window report) and
+``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem follow`` (a head that follows through)."""
 
 from __future__ import annotations
 
@@ -40,7 +41,30 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)
+    door = sub.add_parser("door", help="the floppy hat under the door: IK on the neck chain, IKD on posture, clearance")
+    door.add_argument("shot", nargs="?", default=None, metavar="DOOR_SHOT",
+                      help="a door shot file (.toml; default: the built-in scene kdfem/scenes/door.toml)")
+    door.add_argument("--out", default="kd-out/door", help="output folder (default kd-out/door)")
+    door.add_argument("--no-movie", dest="movie", action="store_false", default=None, help="skip movie.mp4")
+    door.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    door.set_defaults(func=_door)
+    follow = sub.add_parser("follow", help="a sharp head turn on the skeletal KD neck (MuJoCo); face and hat ride it")
+    follow.add_argument("--out", default="kd-out/follow", help="output folder (default kd-out/follow)")
+    follow.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    follow.set_defaults(func=_follow)
     return ap
+
+
+def _follow(args) -> dict:
+    from .scenes.follow import run_follow
+
+    return run_follow(args.out)
+
+
+def _door(args) -> dict:
+    from .scenes.door import run_door
+
+    return run_door(args.out, shot=args.shot, movie=args.movie, progress=not args.json)
 
 
 def _window(args) -> dict:

@@ -6,7 +6,11 @@ A constraint at time t_i measures a quantity q(x_KD(t_i), x_KD(t_i − h)) and w
 - ``subset`` — the positions of a vertex group only; the other vertices stay free;
 - ``velocity`` — the KD velocity of a vertex group by finite difference of KD states (eq. 12);
 - ``end_effector`` — a point p(x) = Σ_j w_j x_j (e.g. the centroid of a few vertices, a hat tip); its error is
-  mapped to a state displacement through a damped pseudo-inverse of J = ∂p/∂x (eq. 4, 14).
+  mapped to a state displacement through a damped pseudo-inverse of J = ∂p/∂x (eq. 4, 14);
+- ``plane`` — the height q = n·p(x) of such a point along a plane normal n, on the plane (q = offset) or, as an
+  inequality, below it (q ≤ offset: the residual is min(0, offset − q), zero while the point is clear). The
+  one-dimensional error lifts like an end effector's, through J = n·∂p/∂x. The clearance constraint
+  (:mod:`kdfaces.ikd.clearance`) adds such constraints where a pass violates it.
 
 ``residual`` is target − q in the constraint's own space; ``lift`` maps a residual to a state-sized displacement
 e (the correction direction) — directly on vertex states, or through a Jacobian J = ∂x/∂state when the corrected
@@ -28,9 +32,11 @@ from .bases import Basis
 from .corrections import POSITION, VELOCITY
 
 __all__ = ["Constraint", "pose_constraint", "subset_constraint", "velocity_constraint", "end_effector_constraint",
-           "KINDS"]
+           "plane_constraint", "KINDS", "POINT_KINDS"]
 
-KINDS = ("pose", "subset", "velocity", "end_effector")
+KINDS = ("pose", "subset", "velocity", "end_effector", "plane")
+#: Kinds measured at one point p = Σ w_j x_j (their weights sum to one).
+POINT_KINDS = ("end_effector", "plane")
 
 
 @dataclass(frozen=True)
@@ -42,12 +48,15 @@ class Constraint:
         time_s: t_i [s].
         basis: the bell of its correction slot (φ_i; velocity constraints use ψ_i = dφ_i/dt).
         indices: constrained vertex indices, shape (G,).
-        target: (G, 3) positions [m] (pose/subset), velocities [m/s] (velocity), or (3,) point [m] (end effector).
-        weights: (G,) end-effector point weights (sum to one), else None.
+        target: (G, 3) positions [m] (pose/subset), velocities [m/s] (velocity), (3,) point [m] (end effector), or
+            (1,) plane offset [m] (plane).
+        weights: (G,) point weights (sum to one) of end-effector and plane constraints, else None.
         pinv_damping: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹, relative to ‖J‖² (end effector, and every
             constraint lifted through a Jacobian).
         label: a name for reports.
         index: position in the list it was built in (for unique names in messages; -1 if unknown).
+        normal: (3,) unit plane normal of a plane constraint, else None.
+        inequality: a plane constraint that only asks n·p ≤ offset (below the plane), not equality.
     """
 
     kind: str
@@ -60,6 +69,8 @@ class Constraint:
     label: str = ""
     index: int = -1
     meta: dict = field(default_factory=dict, compare=False)
+    normal: np.ndarray | None = None
+    inequality: bool = False
 
     @property
     def time(self) -> float:
@@ -108,11 +119,15 @@ class Constraint:
             return (x[self.indices] - x_prev[self.indices]) / h  # eq. 12
         if self.kind == "end_effector":
             return self.weights @ x[self.indices]
+        if self.kind == "plane":
+            return np.array([self.normal @ (self.weights @ x[self.indices])])
         return x[self.indices]
 
     def residual(self, x, x_prev, h) -> np.ndarray:
-        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12)."""
-        return self.target - self.measure(x, x_prev, h)
+        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12); for an inequality (below a
+        plane) only the violating part, min(0, offset − n·p)."""
+        r = self.target - self.measure(x, x_prev, h)
+        return np.minimum(r, 0.0) if self.inequality else r
 
     def error(self, r: np.ndarray) -> float:
         """The reported error of a residual: max over vertices of the Euclidean norm [m or m/s]."""
@@ -121,7 +136,12 @@ class Constraint:
     def lift(self, r: np.ndarray, num_vertices: int) -> np.ndarray:
         """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors)."""
         e = np.zeros((num_vertices, 3))
-        if self.kind == "end_effector":
+        if self.kind == "plane":
+            # q = n·Σ w_j x_j ⇒ J = [w_1 nᵀ … w_G nᵀ], JJᵀ = ‖w‖², J⁺ r = w_j n r / (‖w‖² (1 + μ²))
+            ww = float(self.weights @ self.weights)
+            np.add.at(e, self.indices, self.weights[:, None] * self.normal[None, :] * (float(r[0]) / (
+                ww * (1.0 + self.pinv_damping**2))))
+        elif self.kind == "end_effector":
             # p = Σ w_j x_j ⇒ J = [w_1 I … w_G I], JJᵀ = ‖w‖² I, J⁺ r = w_j r / (‖w‖² (1 + μ²)) for each j
             ww = float(self.weights @ self.weights)
             np.add.at(e, self.indices, self.weights[:, None] * r[None, :] / (ww * (1.0 + self.pinv_damping**2)))
@@ -137,6 +157,8 @@ class Constraint:
         Jg = J.reshape(J.shape[0], 3, -1)
         if self.kind == "end_effector":
             Jm = np.einsum("g,gkn->kn", self.weights, Jg)
+        elif self.kind == "plane":
+            Jm = (self.normal @ np.einsum("g,gkn->kn", self.weights, Jg))[None]
         else:
             Jm = Jg.reshape(-1, Jg.shape[-1])
         rr = np.asarray(r, dtype=np.float64).reshape(-1)
@@ -216,3 +238,22 @@ def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, wei
         raise KDInputError(f"{label}: pinv_damping must be non-negative, got {pinv_damping}")
     return Constraint("end_effector", _time(time_s, label), basis, idx, _target(target_point, (3,), label),
                       weights=w, pinv_damping=float(pinv_damping), label=label)
+
+
+@renamed_kwargs(time="time_s")
+def plane_constraint(time_s, normal, offset_m: float, vertices, basis: Basis, *, weights=None, num_vertices: int,
+                     side: str = "below", pinv_damping: float = defaults.PINV_DAMPING, label="plane") -> Constraint:
+    """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) on the plane n·p = ``offset_m`` [m]
+    (``side="on"``) or below it, n·p ≤ ``offset_m`` (``side="below"``, an inequality: no correction while the point
+    is clear), at ``time_s`` [s]. ``normal`` (3,) is normalised; the error lifts through the damped
+    pseudo-inverse of J = n·∂p/∂x (eq. 4–5, μ = ``pinv_damping``)."""
+    if side not in ("below", "on"):
+        raise KDInputError(f"{label}: side must be 'below' or 'on', got {side!r}")
+    ee = end_effector_constraint(time_s, np.zeros(3), vertices, basis, weights=weights, num_vertices=num_vertices,
+                                 pinv_damping=pinv_damping, label=label)
+    n = _target(normal, (3,), f"{label} normal")
+    norm = float(np.linalg.norm(n))
+    if norm == 0.0:
+        raise KDInputError(f"{label}: the plane normal must be non-zero")
+    off = _target([offset_m], (1,), f"{label} offset_m")
+    return dataclasses.replace(ee, kind="plane", target=off, normal=n / norm, inequality=side == "below")

@@ -93,11 +93,13 @@ class KinematicTrajectory:
     ``channel_map`` entry, the shape of that name, or both halves of a side-split shape (``browInnerUp`` drives
     ``browInnerUp_L`` and ``browInnerUp_R``). Channels left over are an error when ``strict`` (default: the
     animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them; shapes no
-    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use.
+    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use. ``joints``, a
+    joint-angle trajectory of the rig's skeleton (e.g. the KD head of :func:`kdfaces.articulated.kd_joint_trajectory`),
+    drives the skeleton instead of the animation's joint curves (the face then rides on it).
     """
 
     def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, channel_map: dict | None = None,
-                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20):
+                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20, joints=None):
         self.rig = rig
         self.animation = animation
         self.chunk = int(chunk)
@@ -130,6 +132,11 @@ class KinematicTrajectory:
         #: identifies the content for caches (rig and animation are immutable, so one token per trajectory)
         self.version = ("kinematic", next(_TOKENS))
         self._joints = None
+        if joints is not None:  # a joint-angle trajectory (e.g. a KD head) drives the skeleton instead
+            if rig.skeleton is None or tuple(getattr(joints, "state_shape", ())) != (len(rig.skeleton.names), 3):
+                raise KDInputError(f"joints: expected a joint-angle trajectory of rig {rig.name!r}'s skeleton")
+            self._joints = joints
+        self._joint_override = joints is not None
 
     @property
     def state_shape(self) -> tuple[int, int]:
@@ -239,7 +246,13 @@ class KinematicTrajectory:
         dy = self.rig.blend_offsets(w[1])
         ddy = self.rig.blend_offsets(w[2])
         skel = self.rig.skeleton
-        if skel is not None and self.animation.skeleton.drives:
+        if self._joint_override:
+            G = joint_transforms(skel, self._joints.evaluate(t, 2))
+            y, dy, ddy = skin(skel, G, y, dy, ddy)
+        elif skel is not None and self.animation.skeleton.drives:
             G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
+        if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
+            r = self.animation.skeleton.root_translation(t, 2)
+            y, dy, ddy = y + r[0][:, None], dy + r[1][:, None], ddy + r[2][:, None]
         return y, dy, ddy

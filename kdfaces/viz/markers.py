@@ -29,6 +29,9 @@ def constraint_points(constraint, x: np.ndarray, x_prev: np.ndarray | None = Non
     c = constraint
     if c.kind == "end_effector":
         return c.target.reshape(1, 3), c.measure(x, None, step_s).reshape(1, 3)
+    if c.kind == "plane":  # the point, and its projection onto the plane (itself when an inequality holds)
+        p = c.weights @ x[c.indices]
+        return (p + float(c.residual(x, None, step_s)[0]) * c.normal).reshape(1, 3), p.reshape(1, 3)
     if c.kind == "velocity":
         return x_prev[c.indices] + step_s * c.target, x[c.indices]
     return c.target, x[c.indices]

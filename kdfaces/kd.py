@@ -30,6 +30,10 @@ does; systems key their caches by it.
 The window is rounded up to a whole number of steps, n = ceil(δ/h), so the KD state at t is exactly the state a
 full simulation started at t − n·h reaches at t (:func:`simulate_full` started at the shot start agrees with a
 window that reaches back to it).
+
+The window may also differ per time: ``window_s="adaptive"`` (each time's smallest window whose truncation error is
+bounded by ε, :func:`kdfaces.window.adaptive_windows`) or an array of windows, one per time. Times are then grouped
+by their step count, each group one batch (or several, within the memory budget).
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from .deprecation import renamed_kwargs
 from .errors import KDInputError
 from .resources import format_bytes, memory_budget_bytes, progress_bar
 
-__all__ = ["KDSystem", "window_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
+__all__ = ["KDSystem", "window_steps", "time_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
 
 
 class KDSystem(Protocol):
@@ -145,14 +149,38 @@ def _run(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None) ->
     return system.observe(state)
 
 
+def time_steps(system, trajectory, times, window_s, step_s: float) -> np.ndarray:
+    """Steps n of the window at each of ``times`` (T,) [s] → (T,) int64, for ``window_s`` as :func:`simulate_kd`
+    takes it: seconds (one window for all), ``"adaptive"``, or an array of seconds (T,) (0: the kinematic state,
+    no step)."""
+    t = _times(times)
+    if isinstance(window_s, str):
+        if window_s != "adaptive":
+            raise KDInputError(f"window_s: expected seconds, an array of seconds or 'adaptive', got {window_s!r}")
+        from .window import adaptive_windows
+
+        return adaptive_windows(system, trajectory, t, step_s=step_s).steps
+    if np.ndim(window_s) == 0:
+        return np.full(len(t), window_steps(window_s, step_s), dtype=np.int64)
+    w = np.asarray(window_s, dtype=np.float64)
+    if w.shape != t.shape:
+        raise KDInputError(f"window_s: expected one window per time, shape {t.shape}, got {w.shape}")
+    if not (np.isfinite(w).all() and (w >= 0).all()):
+        raise KDInputError("window_s: expected finite non-negative seconds per time")
+    return np.array([0 if x == 0 else window_steps(float(x), step_s) for x in w], dtype=np.int64)
+
+
 @renamed_kwargs(window="window_s", h="step_s")
-def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s: float | None = None,
+def simulate_kd(system: KDSystem, trajectory, times, window_s, *, step_s: float | None = None,
                 max_memory_bytes: int | None = None, progress: bool = False) -> np.ndarray:
     """KD states at ``times`` (T,) [s] with window δ = ``window_s`` [s] → ``system.observe`` of the batch, (T, P, 3).
 
-    ``step_s`` [s] defaults to the trajectory's frame interval. A single time is the scrub path; many times are one
-    batch. Times must lie inside the shot; windows may reach before its start (the trajectory holds its first pose
-    there). Windows whose starts share a phase on the step grid are simulated together, and a system that
+    ``window_s`` is seconds; or ``"adaptive"``: each time's own smallest window whose truncation error is bounded
+    by ε (:func:`kdfaces.window.adaptive_windows`, history-free: it reads the kinematic trajectory only); or an
+    array of seconds, one per time (0 gives the kinematic state itself). ``step_s`` [s] defaults to the
+    trajectory's frame interval. A single time is the scrub path; many times are one batch. Times must lie inside
+    the shot; windows may reach before its start (the trajectory holds its first pose there). Windows with the
+    same step count whose starts share a phase on the step grid are simulated together, and a system that
     estimates its memory (``memory_bytes``) gets batches that fit ``max_memory_bytes`` (default half the available
     memory): each KD state is its own simulation, so the result does not depend on how the batch is split.
     ``progress`` shows a bar over the state-steps on stderr when the call runs longer than two seconds.
@@ -160,16 +188,20 @@ def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s:
     t = _times(times)
     _check_times(trajectory, t)
     h = default_step(trajectory, step_s)
-    n = window_steps(window_s, h)
-    t0 = t - n * h
+    steps = time_steps(system, trajectory, t, window_s, h)
     budget = memory_budget_bytes(max_memory_bytes)
-    batches = _batches(system, t0, n, h, float(getattr(trajectory, "start", 0.0)), budget)
-    with progress_bar("KD states", n * len(t), progress) as bar:
-        if len(batches) == 1 and np.array_equal(batches[0], np.arange(len(t))):
-            return _run(system, trajectory, t0, n, h, bar)
+    origin = float(getattr(trajectory, "start", 0.0))
+    plan = []  # (members, steps): one group per step count, largest first
+    for n in np.unique(steps)[::-1]:
+        idx = np.flatnonzero(steps == n)
+        n = int(n)
+        plan += [(idx[b], n) for b in _batches(system, t[idx] - n * h, n, h, origin, budget)]
+    with progress_bar("KD states", int(steps.sum()), progress) as bar:
+        if len(plan) == 1 and np.array_equal(plan[0][0], np.arange(len(t))):
+            return _run(system, trajectory, t - plan[0][1] * h, plan[0][1], h, bar)
         out = None
-        for idx in batches:
-            x = _run(system, trajectory, t0[idx], n, h, bar)
+        for idx, n in plan:
+            x = _run(system, trajectory, t[idx] - n * h, n, h, bar)
             if out is None:
                 out = np.empty((len(t), *x.shape[1:]), dtype=x.dtype)
             out[idx] = x

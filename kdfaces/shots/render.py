@@ -27,6 +27,7 @@ from ..viz.figures import filmstrip, part_colors
 from ..viz.heatmap import heatmap_strip
 from ..viz.markers import constraint_panel
 from ..viz.movie import render_movie
+from .run import kd_windows, window_argument
 
 __all__ = ["still_states", "render_shot", "add_render_parser"]
 
@@ -37,9 +38,10 @@ def still_states(run, times) -> dict[str, np.ndarray]:
     t = np.asarray(times, dtype=np.float64)
     traj = run.shot.trajectory
     h = run.shot.step_s
-    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, step_s=h)}
+    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, kd_windows(run, traj, t), step_s=h)}
     if run.ikd_result is not None:
-        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, step_s=h)
+        corrected = run.ikd_result.trajectory
+        rows["IKD"] = simulate_kd(run.system, corrected, t, kd_windows(run, corrected, t), step_s=h)
     return rows
 
 
@@ -145,7 +147,8 @@ def add_render_parser(subparsers) -> None:
     ap = subparsers.add_parser("render", help="filmstrip, heat map, constraint markers and movie of a shot")
     ap.add_argument("shot", help="the shot file (TOML)")
     ap.add_argument("--out", help="output folder (default kd-out/<shot file stem>)")
-    ap.add_argument("--window", type=float, help="KD window δ [s] (default: the shot's)")
+    ap.add_argument("--window", type=window_argument,
+                    help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--frames", type=int, default=6, help="stills: constraint times, filled up to this many")
     ap.add_argument("--no-movie", action="store_true", help="skip the movie")
     ap.add_argument("--movie-format", choices=("mp4", "gif"), help="movie format (default mp4, GIF fallback)")

@@ -14,13 +14,13 @@ import numpy as np
 from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
-from ..kd import simulate_kd
+from ..kd import simulate_full, simulate_kd, window_steps
 from ..resources import format_bytes, memory_budget_bytes, progress_bar
+from ..window import adaptive_windows
 from .shotfile import Shot, load_shot
 
-__all__ = ["ShotRun", "run_shot", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
-           "add_run_parser"]
-
+__all__ = ["ShotRun", "run_shot", "kd_windows", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
+           "add_run_parser", "window_argument"]
 
 
 @dataclass
@@ -33,8 +33,14 @@ class ShotRun:
         ikd: x_KD of the corrected trajectory x_K + f at every frame [m], (F, N, 3); None without constraints.
         ikd_result: the solver's result (None without constraints); check_errors: the independent check
             (each constrained KD state recomputed from scratch with the final correction) [m or m/s], (C,).
-        window_s, window_auto_s, epsilon_m: the KD window used, the automatic one, and its ε [m].
+        window_s, window_auto_s, epsilon_m: the KD window used (with adaptive windows: the one the IKD solve
+            used, the automatic one), the automatic one, and its ε [m].
         ms_per_state: wall time of the all-frames KD batch divided by the frames [ms].
+        adaptive: whether each frame has its own window (``window_s = "adaptive"``); then ``kd_windows_s`` and
+            ``ikd_windows_s`` (F,) [s] are the frames' windows of ``kd`` and ``ikd``, ``steps_adaptive`` and
+            ``steps_global`` the steps summed over frames with them and with the automatic window, and
+            ``max_error_vs_full_m`` / ``ikd_max_error_vs_full_m`` the largest ‖x_KD − x_full‖ over every vertex
+            and frame [m] (:func:`~kdfaces.kd.simulate_full` of the same trajectory).
     """
 
     shot: Shot
@@ -49,6 +55,13 @@ class ShotRun:
     window_auto_s: float
     epsilon_m: float
     ms_per_state: float
+    adaptive: bool = False
+    kd_windows_s: np.ndarray | None = None
+    ikd_windows_s: np.ndarray | None = None
+    steps_adaptive: int | None = None
+    steps_global: int | None = None
+    max_error_vs_full_m: float | None = None
+    ikd_max_error_vs_full_m: float | None = None
 
     @property
     def step_s(self) -> float:
@@ -67,7 +80,12 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
              max_memory_bytes: int | None = None, progress: bool = False) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
 
-    ``window_s`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``step_scale`` override the solver's;
+    ``window_s`` [s] (or ``"auto"``, ``"adaptive"``) overrides the shot's ``dynamics.window_s``. With
+    ``"adaptive"`` every frame gets its own window (:func:`kdfaces.window.adaptive_windows`), the run measures the
+    error of every frame against :func:`~kdfaces.kd.simulate_full`, and the IKD solve keeps the automatic window
+    (its corrections change the trajectory's accelerations every sweep, §6.4); the corrected trajectory's frames get
+    their own adaptive windows again, except the constraints' own KD states, which keep the solve's window so the
+    constraints hold exactly. ``update``/``step_scale`` override the solver's;
     ``max_memory_bytes`` bounds each KD batch (default half the available memory); ``progress`` shows bars for the
     stages that take longer than two seconds.
     """
@@ -84,10 +102,12 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     est = automatic_window(model, traj, step_s=h)
     auto = max(est.window_s, h)
     if window is None:
-        w = shot.dynamics["window_s"]
-        window = auto if w == "auto" else float(w)
-    if not (window > 0):
-        raise KDInputError(f"window: expected positive seconds, got {window}")
+        window = shot.dynamics["window_s"]
+    adaptive = window == "adaptive"
+    if window in ("auto", "adaptive"):
+        window = auto
+    if isinstance(window, str) or not (window > 0):
+        raise KDInputError(f"window: expected positive seconds, 'auto' or 'adaptive', got {window!r}")
     times = shot.animation.frame_times
     need = 4 * len(times) * model.num_vertices * 3 * 8  # x_K, x_KD, x_IKD of every frame, and one working copy
     budget = memory_budget_bytes(max_memory_bytes)
@@ -97,9 +117,20 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
                            f"budget of {format_bytes(budget)} (check animation.fps and the shot's length, bake long "
                            "takes with the chunked bake, or raise --max-memory)")
     kinematic = traj.positions(times)
+    extra = {}
+    frame_windows = window
     t0 = _time.perf_counter()
-    kd = simulate_kd(system, traj, times, window, step_s=h, max_memory_bytes=max_memory_bytes, progress=progress)
+    if adaptive:
+        frame_windows = adaptive_windows(system, traj, times, step_s=h).window_s
+    kd = simulate_kd(system, traj, times, frame_windows, step_s=h, max_memory_bytes=max_memory_bytes,
+                     progress=progress)
     ms = 1e3 * (_time.perf_counter() - t0) / len(times)
+    if adaptive:
+        full = simulate_full(system, traj, times, step_s=h)
+        extra = {"adaptive": True, "kd_windows_s": frame_windows,
+                 "steps_adaptive": int(np.rint(frame_windows / h).sum()),
+                 "steps_global": window_steps(window, h) * len(times),
+                 "max_error_vs_full_m": float(np.linalg.norm(kd - full, axis=-1).max())}
     result = ikd = check = None
     constraints = shot.constraints()
     if solve and constraints:
@@ -111,12 +142,38 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
         with progress_bar("IKD sweeps", s["max_iterations"], progress) as bar:
             result = solve_ikd(system, traj, constraints, window_s=window, step_s=h,
                                callback=lambda it, err: bar.update(1), **s)
-        ikd = simulate_kd(system, result.trajectory, times, window, step_s=h, max_memory_bytes=max_memory_bytes,
+        ikd_windows = _kd_windows(system, result, result.trajectory, times, window, h) if adaptive else window
+        ikd = simulate_kd(system, result.trajectory, times, ikd_windows, step_s=h, max_memory_bytes=max_memory_bytes,
                           progress=progress)
         check = independent_check(system, result, window_s=window, step_s=h)
+        if adaptive:
+            full = simulate_full(system, result.trajectory, times, step_s=h)
+            extra["ikd_windows_s"] = ikd_windows
+            extra["ikd_max_error_vs_full_m"] = float(np.linalg.norm(ikd - full, axis=-1).max())
     return ShotRun(shot=shot, system=system, times=times, kinematic=kinematic, kd=kd, ikd=ikd, ikd_result=result,
                    check_errors=check, window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m,
-                   ms_per_state=ms)
+                   ms_per_state=ms, **extra)
+
+
+def _kd_windows(system, result, trajectory, times, window_s: float, step_s: float):
+    """Adaptive windows of ``trajectory`` at ``times``; on the IKD-corrected trajectory, the constraints' KD states
+    (t_i, and t_i − h for velocity constraints) keep the solve's window ``window_s``."""
+    w = adaptive_windows(system, trajectory, times, step_s=step_s).window_s.copy()
+    if result is not None and trajectory is result.trajectory:
+        solved = [c.time_s for c in result.constraints]
+        solved += [c.time_s - step_s for c in result.constraints if c.needs_previous]
+        w[np.isclose(np.asarray(times)[:, None], np.array(solved)[None], rtol=0, atol=1e-9).any(axis=1)] = window_s
+    return w
+
+
+def kd_windows(run: ShotRun, trajectory, times):
+    """What :func:`~kdfaces.kd.simulate_kd` takes as ``window_s`` for KD states of ``run`` at ``times`` (T,) [s] on
+    ``trajectory`` (the shot's, or the IKD-corrected one): the run's window, or with adaptive windows each time's
+    own (the constraints' KD states on the corrected trajectory keep the solve's window)."""
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    if not getattr(run, "adaptive", False):
+        return run.window_s
+    return _kd_windows(run.system, run.ikd_result, trajectory, t, run.window_s, run.step_s)
 
 
 def ikd_summary(run: ShotRun) -> dict:
@@ -170,9 +227,11 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
     t = strip_times(run)
     # KD is history-free: the strip's times (constraint times need not be frames) are simulated on their own
     traj = run.shot.trajectory
-    rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, step_s=run.step_s)}
+    rows = {"kinematic": traj.positions(t),
+            "KD": simulate_kd(run.system, traj, t, kd_windows(run, traj, t), step_s=run.step_s)}
     if run.ikd_result is not None:
-        rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, step_s=run.step_s)
+        corrected = run.ikd_result.trajectory
+        rows["IKD"] = simulate_kd(run.system, corrected, t, kd_windows(run, corrected, t), step_s=run.step_s)
     paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}",
                        colors=part_colors(rig))]
     if run.ikd_result is not None:
@@ -226,12 +285,23 @@ def run_summary(run: ShotRun, out, paths) -> dict:
         },
         "outputs": [str(Path(p).relative_to(out)) for p in paths],
     }
+    if run.adaptive:
+        summary["kd"].update({
+            "window_mode": "adaptive",
+            "steps_adaptive": run.steps_adaptive,
+            "steps_global": run.steps_global,
+            "max_error_vs_full_m": run.max_error_vs_full_m,
+            "window_adaptive_s": {"min": float(run.kd_windows_s.min()), "median": float(np.median(run.kd_windows_s)),
+                                  "max": float(run.kd_windows_s.max())},
+        })
     if rig.vertex_parts is not None:
         summary["kd"]["max_deviation_by_part_m"] = {
             name: float(dev[rig.vertex_parts == k].max()) for k, name in enumerate(rig.part_names)
             if (rig.vertex_parts == k).any()}
     if run.ikd_result is not None:
         summary["ikd"] = ikd_summary(run)
+        if run.ikd_max_error_vs_full_m is not None:
+            summary["ikd"]["max_error_vs_full_m"] = run.ikd_max_error_vs_full_m
     return summary
 
 
@@ -242,9 +312,22 @@ def add_run_parser(subparsers) -> None:
     p = subparsers.add_parser("run", help="simulate a shot file: KD of every frame, IKD for its constraints")
     p.add_argument("shot", help="TOML shot file")
     p.add_argument("--out", default=None, help="output folder (default kd-out/<shot name>)")
-    p.add_argument("--window", type=float, default=None, help="KD window [s] (overrides the shot's)")
+    p.add_argument("--window", type=window_argument, default=None,
+                   help="KD window [s], 'auto' or 'adaptive' (overrides the shot's)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
                    help="memory budget of a KD batch, e.g. 4G (default: half the available memory)")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_export_option(p)
     p.set_defaults(func=_run_command)
+
+
+def window_argument(text: str):
+    """``--window``: seconds, ``auto`` or ``adaptive``."""
+    import argparse
+
+    if text in ("auto", "adaptive"):
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, 'auto' or 'adaptive', got {text!r}") from None

@@ -102,7 +102,7 @@ class DynamicsTable(_Table):
     damping_ratio: Annotated[float, Field(ge=1e-3, le=100, allow_inf_nan=False)] = defaults.DAMPING_RATIO
     shape_matching_alpha: Annotated[float, Field(ge=0, le=1)] = defaults.SHAPE_MATCHING_ALPHA
     damping_mode: Literal["relative", "absolute"] = defaults.DAMPING_MODE
-    window_s: Literal["auto"] | Seconds = defaults.WINDOW_S
+    window_s: Literal["auto", "adaptive"] | Seconds = defaults.WINDOW_S
     step_s: Literal["frame"] | Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = "frame"
     areal_density_kg_m2: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = defaults.AREAL_DENSITY_KG_M2
     auto_rigid: bool = True

@@ -23,7 +23,7 @@ settle_time_s = 0.25               # or { stiff_s = 0.12, loose_s = 0.4 } (per-v
 damping_ratio = 0.3
 shape_matching_alpha = 0.2
 damping_mode = "relative"          # or "absolute" (the paper's −K_d·ẋ)
-window_s = "auto"                  # or seconds
+window_s = "auto"                  # or seconds, or "adaptive" (a window per frame, bounded by ε)
 step_s = "frame"                   # the animation's frame interval (default), or seconds
 auto_rigid = true                  # pieces no shape deforms (teeth, eyeballs) follow x_K exactly
 [dynamics.parts]                   # by part (OBJ group / glTF primitive), vertex group, or "piece:<k>"

@@ -5,9 +5,14 @@ time, so scrubbing back and forth, or jumping, costs the same per frame (the tim
 Sliders change the settle time, damping ratio, window δ and the IKD correction width σ; the display toggles
 between the kinematic pose, the KD state and the IKD state; a key solves IKD for the shot's constraints.
 
-Keys: ``space`` play/stop, ``m`` cycle kinematic → KD → IKD, ``i`` solve IKD, ``w`` kinematic wireframe overlay,
-``Left``/``Right`` step one frame. Every slider and key calls a plain method of :class:`ShotViewer`, so tests
-drive the viewer programmatically; ``kdfaces view SHOT --screenshot FILE --frame F`` renders one frame off-screen.
+With adaptive windows (the shot's ``window_s = "adaptive"``, ``--window adaptive`` or key ``a``) each frame has its
+own window δ(t), the smallest whose truncation error is bounded by ε (:func:`kdfaces.window.adaptive_windows`); the
+status line shows the frame's δ and its bound.
+
+Keys: ``space`` play/stop, ``m`` cycle kinematic → KD → IKD, ``i`` solve IKD, ``a`` adaptive / fixed window,
+``w`` kinematic wireframe overlay, ``Left``/``Right`` step one frame. Every slider and key calls a plain method of
+:class:`ShotViewer`, so tests drive the viewer programmatically; ``kdfaces view SHOT --screenshot FILE --frame F``
+renders one frame off-screen.
 """
 
 from __future__ import annotations
@@ -57,7 +62,7 @@ class ShotViewer:
         shot: a :class:`~kdfaces.shots.shotfile.Shot`.
         off_screen: render without a window (screenshots, tests).
         size: window (width, height) in pixels.
-        window_s: KD window δ [s]; default the shot's ``window_s`` (or the automatic window when "auto").
+        window_s: KD window δ [s], "auto" or "adaptive"; default the shot's ``window_s``.
         widgets: draw the sliders and the play button (they also appear in screenshots).
 
     Attributes:
@@ -66,11 +71,13 @@ class ShotViewer:
         mode: one of :data:`MODES`.
         points: the displayed vertex positions [m], shape (N, 3).
         last_ms: wall time of the last KD state computation [ms] (0 in kinematic mode).
+        adaptive: whether each frame has its own window (:meth:`window_at`); ``window_s`` is then the automatic
+            window, which the IKD solve keeps.
         ikd: the last :class:`~kdfaces.ikd.solver.IKDResult`, or None; ``ikd_stale`` is True when a parameter
             changed after it was solved (it is still shown, against the new dynamics, until solved again).
     """
 
-    def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | None = None,
+    def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | str | None = None,
                  widgets: bool = True, device: str = "cpu"):
         self.shot = shot
         self.trajectory = shot.trajectory
@@ -85,15 +92,16 @@ class ShotViewer:
         self.width_s = _initial_width(self._constraints)
         self._width_set = False  # until the slider moves, every constraint keeps the shot's own width
         self._rebuild_system()
-        window = window_s
-        if window is None:
-            w = shot.dynamics["window_s"]
-            if w == "auto":
-                from ..window import automatic_window
+        w = shot.dynamics["window_s"] if window_s is None else window_s
+        self.adaptive = w == "adaptive"
+        self._windows = {}  # trajectory version → the frames' adaptive windows (AdaptiveWindows)
+        if w in ("auto", "adaptive"):
+            from ..window import automatic_window
 
-                w = automatic_window(self.system, self.trajectory, step_s=self.step_s).window_s
-            window = max(float(w), self.step_s)
-        self.window_s = float(window)
+            w = automatic_window(self.system, self.trajectory, step_s=self.step_s).window_s
+        if isinstance(w, str):
+            raise KDInputError(f"window: expected seconds, 'auto' or 'adaptive', got {w!r}")
+        self.window_s = float(max(float(w), self.step_s))
         self.mode = "kd"
         self.frame = 0
         self.playing = False
@@ -111,6 +119,7 @@ class ShotViewer:
         scale = self.settle_time_s / float(self._settle_map.max())
         model = self.shot.model(settle_time_s=self._settle_map * scale, damping_ratio=self.damping_ratio)
         self.system = FaceSystem(model, device=self.device)
+        self._windows = {}
 
     def constraints(self) -> list:
         """The shot's constraints; once the width slider moved, all with the viewer's correction width σ."""
@@ -127,10 +136,37 @@ class ShotViewer:
             self.last_ms = 0.0
             return self.trajectory.positions([t])[0]
         traj = self.ikd.trajectory if (mode == "ikd" and self.ikd is not None) else self.trajectory
+        window = self.window_at(k, mode)
         t0 = time.perf_counter()
-        x = simulate_kd(self.system, traj, [t], self.window_s, step_s=self.step_s)[0]
+        x = simulate_kd(self.system, traj, [t], [window], step_s=self.step_s)[0]
         self.last_ms = 1e3 * (time.perf_counter() - t0)
         return x
+
+    def adaptive_windows(self, mode: str | None = None):
+        """The frames' adaptive windows (:class:`~kdfaces.window.AdaptiveWindows`) on the trajectory ``mode``
+        shows (the IKD-corrected one in ``"ikd"`` mode once solved), computed once per trajectory and dynamics."""
+        from ..window import adaptive_windows
+
+        mode = self.mode if mode is None else mode
+        traj = self.ikd.trajectory if (mode == "ikd" and self.ikd is not None) else self.trajectory
+        key = getattr(traj, "version", id(traj))
+        if key not in self._windows:
+            self._windows[key] = adaptive_windows(self.system, traj, self.times, step_s=self.step_s)
+        return self._windows[key]
+
+    def window_at(self, frame: int | None = None, mode: str | None = None) -> float:
+        """The KD window δ [s] of ``frame`` (default the displayed one): the fixed window, or the frame's adaptive
+        window (a constraint's own frames on the IKD trajectory keep the solve's window, so they hold exactly)."""
+        k = self.frame if frame is None else int(frame)
+        mode = self.mode if mode is None else mode
+        if not self.adaptive:
+            return self.window_s
+        if mode == "ikd" and self.ikd is not None:
+            t = self.times[k]
+            for c in self.ikd.constraints:
+                if abs(c.time_s - t) <= 1e-9 or (c.needs_previous and abs(c.time_s - self.step_s - t) <= 1e-9):
+                    return self.window_s
+        return float(self.adaptive_windows(mode).window_s[k])
 
     # --- callbacks (sliders, keys, buttons) --------------------------------------------------------------------
     def set_frame(self, value) -> None:
@@ -159,10 +195,17 @@ class ShotViewer:
         self._parameters_changed(rebuild=True)
 
     def set_window(self, value) -> None:
-        """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
+        """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``); a fixed window for every
+        frame (adaptive windows off)."""
         window_steps(float(value), self.step_s)
         self.window_s = float(value)
+        self.adaptive = False
         self._parameters_changed(rebuild=False)
+
+    def set_adaptive(self, on) -> None:
+        """Key ``a``: adaptive per-frame windows on or off (off: the fixed window ``window_s``)."""
+        self.adaptive = bool(on)
+        self.update()
 
     def set_width(self, value) -> None:
         """Correction-width slider: σ [s] of every constraint's bell (takes effect at the next IKD solve).
@@ -278,6 +321,7 @@ class ShotViewer:
             pl.add_key_event("space", self.toggle_play)
             pl.add_key_event("m", self.cycle_mode)
             pl.add_key_event("i", self.solve_ikd)
+            pl.add_key_event("a", lambda: self.set_adaptive(not self.adaptive))
             pl.add_key_event("w", lambda: self.show_kinematic(not self._wire_actor.GetVisibility()))
             pl.add_key_event("Right", lambda: self.step_frame(1))
             pl.add_key_event("Left", lambda: self.step_frame(-1))
@@ -317,10 +361,19 @@ class ShotViewer:
         shown = _MODE_NAMES[self.mode]
         if self.mode == "ikd" and self.ikd is None:
             shown = "IKD (not solved: showing KD)"
+        window = self.window_at()
+        steps = 0 if window == 0 else window_steps(window, self.step_s)
+        how = ""
+        if self.adaptive and window != self.window_s:
+            aw = self.adaptive_windows()
+            how = (f"  adaptive: bound {1e3 * aw.bound_m[self.frame]:.3f} mm <= eps {1e3 * aw.epsilon_m:.3f} mm"
+                   f" (automatic {self.window_s:.2f} s)")
+        elif self.adaptive:
+            how = "  adaptive: the IKD solve's window at a constraint"
         lines = [f"{self.shot.name}   frame {self.frame}/{n - 1}   t = {self.times[self.frame]:.2f} s   {shown}"
                  + ("   [playing]" if self.playing else ""),
-                 f"KD state: {self.last_ms:.1f} ms   window {self.window_s:.2f} s "
-                 f"({window_steps(self.window_s, self.step_s)} steps of {1e3 * self.step_s:.0f} ms)",
+                 f"KD state: {self.last_ms:.1f} ms   window {window:.2f} s "
+                 f"({steps} steps of {1e3 * self.step_s:.0f} ms){how}",
                  self.ikd_message + ("  [stale: press i]" if self.ikd_stale else "")]
         return "\n".join(lines)
 
@@ -371,7 +424,8 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         viewer.set_mode(mode)
         viewer.set_frame(int(frame))
         summary = {"shot": shot.name, "frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
-                   "mode": viewer.mode, "window_s": viewer.window_s, "kd_state_ms": viewer.last_ms}
+                   "mode": viewer.mode, "window_s": viewer.window_at(), "adaptive": viewer.adaptive,
+                   "kd_state_ms": viewer.last_ms}
         if screenshot is not None:
             summary["screenshot"] = str(viewer.screenshot(screenshot))
         else:
@@ -395,7 +449,10 @@ def add_view_parser(subparsers) -> None:
     ap.add_argument("--screenshot", metavar="FILE", help="render one frame off-screen to this PNG and exit")
     ap.add_argument("--frame", type=int, default=0, help="frame index for --screenshot (default 0)")
     ap.add_argument("--mode", default="kd", choices=MODES, help="what to display (default kd)")
-    ap.add_argument("--window", type=float, help="KD window δ [s] (default: the shot's)")
+    from ..shots.run import window_argument
+
+    ap.add_argument("--window", type=window_argument,
+                    help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--width", type=int, default=960, help="window width [px]")
     ap.add_argument("--height", type=int, default=720, help="window height [px]")
     ap.add_argument("--json", action="store_true", help="print the summary to stdout")

@@ -128,6 +128,16 @@ class HatSystem:
         return WindowEstimate(window_s=max(float(w.window_s), h), epsilon_m=float(w.epsilon_m),
                               acceleration_max=a_max, initial_speed=float(w.qdot1), regime=str(w.regime))
 
+    def adaptive_windows(self, trajectory, times=None, *, step_s: float | None = None,
+                         epsilon_m: float | None = None, start_s: float | None = None):
+        """Per-time KD windows bounded by ε from the modal envelope (``window_s="adaptive"``): each time's smallest
+        window whose truncation error, from the head's recent kicks decayed by each mode's impulse response, is
+        ≤ ε (default 0.001·d·√N); see :mod:`kdfem.modal.adaptive`. Returns a
+        :class:`kdfaces.window.AdaptiveWindows`."""
+        from ..modal.adaptive import modal_adaptive_windows
+
+        return modal_adaptive_windows(self, trajectory, times, step_s=step_s, epsilon_m=epsilon_m, start_s=start_s)
+
     def surface(self, x: np.ndarray) -> np.ndarray:
         """Render-surface positions (..., V, 3) [m] from node positions (..., N, 3) (needs ``embedding``)."""
         if self.embedding is None:

@@ -233,18 +233,19 @@ class KinematicTrajectory:
         check_finite(t, "trajectory times")
         if order not in (0, 1, 2):
             raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
-        parts = [self._evaluate_chunk(t[i:i + self.chunk])[:order + 1] for i in range(0, len(t), self.chunk)]
+        parts = [self._evaluate_chunk(t[i:i + self.chunk], order)[:order + 1] for i in range(0, len(t), self.chunk)]
         return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
 
     def positions(self, times) -> np.ndarray:
         """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""
         return self.evaluate(times, order=0)[0]
 
-    def _evaluate_chunk(self, t):
-        w = self.weights(t, 2)
+    def _evaluate_chunk(self, t, order: int = 2):
+        """x_K, ẋ_K, ẍ_K at ``t``; with ``order`` 0 only x_K is computed (the derivatives are None)."""
+        w = self.weights(t, 2 if order else 0)
         y = self.rig.blend(w[0])
-        dy = self.rig.blend_offsets(w[1])
-        ddy = self.rig.blend_offsets(w[2])
+        dy = self.rig.blend_offsets(w[1]) if order else None
+        ddy = self.rig.blend_offsets(w[2]) if order else None
         skel = self.rig.skeleton
         if self._joint_override:
             G = joint_transforms(skel, self._joints.evaluate(t, 2))
@@ -254,5 +255,7 @@ class KinematicTrajectory:
             y, dy, ddy = skin(skel, G, y, dy, ddy)
         if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
             r = self.animation.skeleton.root_translation(t, 2)
-            y, dy, ddy = y + r[0][:, None], dy + r[1][:, None], ddy + r[2][:, None]
+            y = y + r[0][:, None]
+            if order:
+                dy, ddy = dy + r[1][:, None], ddy + r[2][:, None]
         return y, dy, ddy

@@ -65,7 +65,9 @@ _EXPORTS = {
     'run_shot': 'shots',
     'kd_error_report': 'viz.kd_report',
     'write_kd_report': 'viz.kd_report',
+    'AdaptiveWindows': 'window',
     'WindowEstimate': 'window',
+    'adaptive_windows': 'window',
     'automatic_window': 'window',
     'window_1d': 'window',
 }
@@ -79,7 +81,8 @@ __all__ = [
     "livelinkface_animation", "export_trajectory", "export_rig",
     # face kinodynamics (§3, §4.5, §5.2)
     "FaceModel", "FaceSystem", "soft_tissue_settle_map", "simulate_kd", "simulate_full", "observe_kinematic",
-    "window_steps", "default_step", "automatic_window", "window_1d", "WindowEstimate", "kd_error_report",
+    "window_steps", "default_step", "automatic_window", "window_1d", "WindowEstimate", "adaptive_windows",
+    "AdaptiveWindows", "kd_error_report",
     "write_kd_report",
     # inverse kinodynamics (§3.1, §4)
     "solve_ikd", "IKDResult", "independent_check", "pose_constraint", "subset_constraint", "velocity_constraint",

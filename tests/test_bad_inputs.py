@@ -54,6 +54,8 @@ SHOT_CASES = [
      "dynamics.damping_mode: expected 'relative' or 'absolute'"),
     ("window-huge", ("window_s = 0.4", "window_s = 1e6"), "dynamics.window_s"),
     ("window-string", ("window_s = 0.4", 'window_s = "automatic"'), "dynamics.window_s: expected 'auto' or"),
+    ("window-adaptive-typo", ("window_s = 0.4", 'window_s = "adaptiv"'),
+     "dynamics.window_s: expected 'auto' or 'adaptive' or a valid number (got 'adaptiv')"),
     ("step-long", ("window_s = 0.4", "window_s = 0.4\nstep_s = 10"), "dynamics.step_s"),
     ("step-longer-than-shot", [("end_s = 1.2", "end_s = 0.6"), ("window_s = 0.4", "window_s = 0.4\nstep_s = 0.9")],
      "dynamics.step_s: 0.9 s is longer than the shot"),

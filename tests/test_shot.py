@@ -80,7 +80,8 @@ def test_good_shot(tmp_path):
         (("time_s = 1.8", "time_s = 2.5"), r"constraints\[3\].time_s: 2.5 s is outside the shot \[0.0, 2.0\] s"),
         (("width_s = 0.3", "width_s = -0.3"), r"constraints\[0\].width_s: expected a positive number"),
         (('group = "lips"', 'group = "lipz"'), "unknown group 'lipz'"),
-        (("window_s = 0.8", "window_s = -1"), r"dynamics.window_s: expected 'auto' or a positive number \(got -1\)"),
+        (("window_s = 0.8", "window_s = -1"),
+         r"dynamics.window_s: expected 'auto' or 'adaptive' or a positive number \(got -1\)"),
         (("[dynamics]", "[dynamics]\nstifness = 3"), r"dynamics.stifness: unknown key"),
         (('kind = "pose"', 'kind = "pos"'), r"constraints\[0\].kind: expected 'pose', 'subset', 'velocity' or "
                                             r"'end_effector' \(got 'pos'\)"),

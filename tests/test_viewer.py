@@ -143,3 +143,30 @@ def test_screenshot_mode(tmp_path):
     with pytest.raises(KDInputError, match=r"--frame: 31 is outside the shot's frames 0..30"):
         args.func(args)
     assert not (tmp_path / "g.png").exists()
+
+
+def test_adaptive_windows_per_frame(shot):
+    """``window_s="adaptive"``: each frame its own δ, shown on screen; a constraint's frame on the IKD trajectory
+    keeps the solve's (automatic) window so the constraint still holds; the window slider goes back to fixed."""
+    from kdfaces.viz.viewer import ShotViewer
+    from kdfaces.window import adaptive_windows
+
+    v = ShotViewer(shot, off_screen=True, size=(320, 240), window_s="adaptive", widgets=False)
+    try:
+        aw = adaptive_windows(v.system, shot.trajectory, v.times, step_s=shot.step_s)
+        assert v.adaptive and len(np.unique(aw.steps)) > 2 and aw.steps[0] == 0
+        for f in (0, 12, 20):
+            v.set_frame(f)
+            assert v.window_at() == aw.window_s[f]
+            expect = simulate_kd(v.system, shot.trajectory, [v.times[f]], [aw.window_s[f]], step_s=shot.step_s)[0]
+            np.testing.assert_allclose(v.points, expect, atol=ATOL)
+        assert f"window {aw.window_s[20]:.2f} s" in v.status() and "adaptive: bound" in v.status()
+        r = v.solve_ikd()
+        assert r.converged and v.window_at(20, "ikd") == v.window_s
+        assert np.linalg.norm(v.points - r.constraints[0].target, axis=1).max() < 1e-4
+        v.set_window(0.4)
+        assert not v.adaptive and v.window_at() == 0.4
+        v.set_adaptive(True)
+        assert v.adaptive and v.window_at(12, "kd") == aw.window_s[12]
+    finally:
+        v.close()

@@ -183,16 +183,16 @@ class AdaptiveWindows:
 def impulse_responses(stiffness, damping, step_s: float, *, stiffening=(0.0,), groups=None,
                       max_steps: int = MAX_WINDOW_STEPS) -> tuple[np.ndarray, np.ndarray]:
     """Discrete impulse responses of unit-mass oscillators q̈ + c q̇ + k q = 0 under the implicit step of the face
-    kernel and the FEM integrator (backward Euler with the spring at the end of the step):
+    kernel and the FEM integrator (backward Euler with the spring at the end of the step), after an explicit pull
+    of strength s on the deviation at the step's start (shape matching; s = 0 without)::
 
-        q̇ ← q̇ − (s/h) q   (an explicit pull of strength s on the deviation at the step's start, shape matching;
-                            s = 0 without),
+        q̇ ← q̇ − (s/h) q,
         q̇' = (q̇ − h k q) / (1 + h c + h² k),   q' = q + h q̇'.
 
     ``stiffness`` k [1/s²] and ``damping`` c [1/s] (P,), step ``step_s`` h [s], pulls s ∈ ``stiffening``.
-    Returns (Gv, Gd), each (B, M): |q| after m + 1 steps of a unit velocity kick (Gv, [m per m/s]) or a unit
-    displacement (Gd, [1]) applied at step 0 (after that step's pull), the largest over the pulls and over the
-    oscillators of each group (``groups`` (P,) int in [0, B), sorted; default one group each). M is where every
+    Returns (Gv, Gd), each (B, M): the magnitude of q after m + 1 steps of a unit velocity kick (Gv, [m per m/s])
+    or a unit displacement (Gd, [1]) applied at step 0 (after that step's pull), the largest over the pulls and over
+    the oscillators of each group (``groups`` (P,) int in [0, B), sorted; default one group each). M is where every
     response has fallen below 1e-12 of its peak (the rest is dropped).
     """
     k = np.asarray(stiffness, dtype=np.float64).reshape(-1)
@@ -320,7 +320,7 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
 
     **The bound.** Let z = (d, w) = (x − x_K, ẋ − ẋ_K) be a vertex's deviation from its kinematic target at grid
     time t_j. The face step (:func:`~kdfaces.dynamics.kernels.track_step`: per unit mass, backward Euler on the PD
-    terms with targets at t_j + h) is, without shape matching, linear in z:
+    terms with targets at t_j + h) is, without shape matching, linear in z::
 
         w' = (w + a_j − h·kp·(d − b_j)) / (1 + h·kd + h²·kp),   d' = d − b_j + h·w',
 
@@ -331,7 +331,7 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     a displacement −b_j ≈ h²/2·ẍ_K every step, and A, the same matrix for every start, decays the kicks. A KD state
     at t_k with window n starts at z = 0 at t_{k−n}; the full simulation starts at z = 0 at the shot start (j = 0)
     and is at t_{k−n} at the deviation its older kicks left. Both then take the same steps, so their difference at
-    t_k is what those older kicks left at t_k (superposition):
+    t_k is what those older kicks left at t_k (superposition)::
 
         x_full(t_k) − x_KD(t_k) = Σ_{m ≥ n} [A^{m+1} (−b, a)_{k−1−m}]_d,
         ‖x_full(t_k) − x_KD(t_k)‖ ≤ E(k, n) = Σ_{m ≥ n} Gv(m)·‖a_{k−1−m}‖ + Gd(m)·‖b_{k−1−m}‖,
@@ -348,10 +348,10 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     **Shape matching** (α > 0) adds a pull v ← v + α/h·(g − x) towards goals fitted to the kinematic shape, zero
     when d = 0; linearised, it pulls each deviation mode by α·λ·d/h, λ ∈ [0, 1] an eigenvalue of the goal
     projection (0 for the cluster-rigid modes it leaves alone). It adds explicit stiffness only: with
-    D = 1 + h·kd + h²·kp fixed, an underdamped pair keeps |eig| = 1/√D and an overdamped one only moves towards it,
-    so it decays no slower. The responses take the largest over λ ∈ :data:`SHAPE_MATCHING_LAMBDAS`; the rotation
-    fit's non-linearity is left to the check against :func:`~kdfaces.kd.simulate_full` on every frame (tests). The
-    float32 state adds round-off far below ε.
+    D = 1 + h·kd + h²·kp fixed, an underdamped pair keeps its eigenvalues' modulus 1/√D and an overdamped one only
+    moves towards it, so it decays no slower. The responses take the largest over λ ∈
+    :data:`SHAPE_MATCHING_LAMBDAS`; the rotation fit's non-linearity is left to the check against
+    :func:`~kdfaces.kd.simulate_full` on every frame (tests). The float32 state adds round-off far below ε.
     """
     own = getattr(system, "adaptive_windows", None)
     if own is not None:

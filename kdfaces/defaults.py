@@ -13,8 +13,8 @@ __all__ = [
     "CLUSTER_RINGS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S",
     "WIDTH_S", "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
-    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "default_step",
-    "user_cache_dir",
+    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "WINDOW_MODES",
+    "default_step", "user_cache_dir", "window_argument",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -32,8 +32,11 @@ AREAL_DENSITY_KG_M2 = 10.0
 CLUSTER_RINGS = 2
 
 # --- KD windows (§3, §5) -------------------------------------------------------------------------------------------
-#: "auto": the §5.2 (faces) or §5.3 (FEM objects) window; or seconds.
+#: "auto": the §5.2 (faces) or §5.3 (FEM objects) window; "adaptive": a window per frame, the smallest whose
+#: truncation error is bounded by ε (:func:`kdfaces.window.adaptive_windows`); or seconds.
 WINDOW_S = "auto"
+#: The window values that are words, not seconds.
+WINDOW_MODES = ("auto", "adaptive")
 #: Simulation step [s]; None = the animation's frame interval.
 STEP_S = None
 #: ε as a fraction of the object's diameter (§5.3 uses 0.1 %).
@@ -96,3 +99,15 @@ def default_step(trajectory, step_s: float | None = None) -> float:
     if isinstance(s, bool) or not isinstance(s, int | float) or not (s > 0 and s < float("inf")):
         raise KDInputError(f"step_s: expected a positive number of seconds, got {s!r}")
     return float(s)
+
+
+def window_argument(text: str):
+    """A ``--window`` command-line value: seconds (a float), or one of :data:`WINDOW_MODES`."""
+    import argparse
+
+    if text in WINDOW_MODES:
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, 'auto' or 'adaptive', got {text!r}") from None

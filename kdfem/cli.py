@@ -29,8 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="the default head nods and turns wearing a floppy hat: rigid | KD | full")
     demo.add_argument("--out", default="kd-out/hat", help="output folder (default kd-out/hat)")
     demo.add_argument("--rig", default="default", help="rig: 'default' or an .npz rig with a head joint")
-    demo.add_argument("--window", type=float, default=defaults.HAT_WINDOW_S,
-                      help=f"KD window δ [s] (default {defaults.HAT_WINDOW_S})")
+    demo.add_argument("--window", type=defaults.window_argument, default=defaults.HAT_WINDOW_S,
+                      help=f"KD window δ [s], or 'adaptive': one per frame (default {defaults.HAT_WINDOW_S})")
     demo.add_argument("--step", "--h", dest="step", type=float, default=defaults.HAT_STEP_S,
                       help=f"simulation step [s] (default {defaults.HAT_STEP_S})")
     demo.add_argument("--edge-length-fac", type=float, default=defaults.HAT_EDGE_LENGTH_FAC,

@@ -19,6 +19,16 @@ def test_kdfem_demo(tmp_path):
     assert all((tmp_path / p).stat().st_size > 10_000 for p in s["outputs"])
 
 
+def test_kdfem_demo_adaptive_windows(tmp_path):
+    """``--window adaptive``: each frame's window from the modal envelope; every frame within ε of the full
+    simulation (‖·‖ over all nodes), with fewer steps than the §5.3 window."""
+    assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5", "--window", "adaptive"]) == 0
+    kd = json.loads((tmp_path / "summary.json").read_text())["kd"]
+    assert kd["window_mode"] == "adaptive" and kd["window_s"] == "adaptive"
+    assert 0.1 * kd["epsilon_m"] < kd["max_error_vs_full_m"] <= kd["epsilon_m"]
+    assert kd["steps_global"] / kd["steps_adaptive"] >= 2.0
+
+
 def test_kdfem_window_rejects_a_missing_mesh(tmp_path, capsys):
     assert main(["window", str(tmp_path / "none.stl"), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err

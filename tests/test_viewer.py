@@ -151,7 +151,7 @@ def test_adaptive_windows_per_frame(shot):
     from kdfaces.viz.viewer import ShotViewer
     from kdfaces.window import adaptive_windows
 
-    v = ShotViewer(shot, off_screen=True, size=(320, 240), window_s="adaptive", widgets=False)
+    v = ShotViewer(shot, off_screen=True, size=(320, 240), window_s="adaptive")  # sliders call back on creation
     try:
         aw = adaptive_windows(v.system, shot.trajectory, v.times, step_s=shot.step_s)
         assert v.adaptive and len(np.unique(aw.steps)) > 2 and aw.steps[0] == 0

@@ -27,7 +27,7 @@ from ..viz.figures import filmstrip, part_colors
 from ..viz.heatmap import heatmap_strip
 from ..viz.markers import constraint_panel
 from ..viz.movie import render_movie
-from .run import kd_windows, window_argument
+from .run import kd_windows
 
 __all__ = ["still_states", "render_shot", "add_render_parser"]
 
@@ -147,6 +147,8 @@ def add_render_parser(subparsers) -> None:
     ap = subparsers.add_parser("render", help="filmstrip, heat map, constraint markers and movie of a shot")
     ap.add_argument("shot", help="the shot file (TOML)")
     ap.add_argument("--out", help="output folder (default kd-out/<shot file stem>)")
+    from ..defaults import window_argument
+
     ap.add_argument("--window", type=window_argument,
                     help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--frames", type=int, default=6, help="stills: constraint times, filled up to this many")

@@ -20,7 +20,7 @@ from ..window import adaptive_windows
 from .shotfile import Shot, load_shot
 
 __all__ = ["ShotRun", "run_shot", "kd_windows", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
-           "add_run_parser", "window_argument"]
+           "add_run_parser"]
 
 
 @dataclass
@@ -312,6 +312,8 @@ def add_run_parser(subparsers) -> None:
     p = subparsers.add_parser("run", help="simulate a shot file: KD of every frame, IKD for its constraints")
     p.add_argument("shot", help="TOML shot file")
     p.add_argument("--out", default=None, help="output folder (default kd-out/<shot name>)")
+    from ..defaults import window_argument
+
     p.add_argument("--window", type=window_argument, default=None,
                    help="KD window [s], 'auto' or 'adaptive' (overrides the shot's)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
@@ -320,14 +322,3 @@ def add_run_parser(subparsers) -> None:
     add_export_option(p)
     p.set_defaults(func=_run_command)
 
-
-def window_argument(text: str):
-    """``--window``: seconds, ``auto`` or ``adaptive``."""
-    import argparse
-
-    if text in ("auto", "adaptive"):
-        return text
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, 'auto' or 'adaptive', got {text!r}") from None

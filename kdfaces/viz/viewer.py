@@ -198,6 +198,8 @@ class ShotViewer:
         """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``); a fixed window for every
         frame (adaptive windows off)."""
         window_steps(float(value), self.step_s)
+        if self.adaptive and float(value) == self.window_s:
+            return  # the slider reporting its own starting value (pyvista calls back on creation)
         self.window_s = float(value)
         self.adaptive = False
         self._parameters_changed(rebuild=False)
@@ -449,9 +451,7 @@ def add_view_parser(subparsers) -> None:
     ap.add_argument("--screenshot", metavar="FILE", help="render one frame off-screen to this PNG and exit")
     ap.add_argument("--frame", type=int, default=0, help="frame index for --screenshot (default 0)")
     ap.add_argument("--mode", default="kd", choices=MODES, help="what to display (default kd)")
-    from ..shots.run import window_argument
-
-    ap.add_argument("--window", type=window_argument,
+    ap.add_argument("--window", type=defaults.window_argument,
                     help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--width", type=int, default=960, help="window width [px]")
     ap.add_argument("--height", type=int, default=720, help="window height [px]")

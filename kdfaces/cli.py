@@ -37,7 +37,8 @@ def configure_output(*, verbose: bool = False) -> None:
 def _demo(args) -> dict:
     from .shots.demo import run_demo
 
-    return run_demo(args.out, rig=args.rig, threads=args.threads, exports=args.export)
+    return run_demo(args.out, rig=args.rig, threads=args.threads, exports=args.export,
+                    offset_grid=args.offset_grid > 0, offset_grid_size=max(args.offset_grid, 1))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--rig", default="default", help="rig: 'default', an .npz, or an OBJ folder")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
+    demo.add_argument("--offset-grid", type=int, default=3, metavar="N",
+                      help="N x N hat-tip targets of the Fig. 9 analog (default 3, about 30 s; 0 skips it)")
     add_export_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)

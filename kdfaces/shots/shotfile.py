@@ -29,6 +29,8 @@ target = "kinematic"               # or a table: weights = {...}, head_deg = [ya
 group = "lips"                     # subset / velocity / end_effector: a named group or vertex indices
 width_s = 0.4                      # the animator's width σ of the correction bell
 curve = "gaussian"                 # gaussian | poly | asymmetric (with ease_out_s)
+falloff_m = 0.05                   # subset / velocity / end_effector: the correction falls off to zero over this
+                                   #   geodesic radius around the group (0: on the group only)
 
 [solver]
 update = "secant"                  # "paper" (Algorithm 1) or "secant"
@@ -83,7 +85,7 @@ SOLVER_DEFAULTS = {"update": defaults.SOLVER_UPDATE, "step_scale": defaults.STEP
                    "snap_to_frames": False}
 #: Keys renamed in shot files: the old spelling still works for one release, with a DeprecationWarning.
 RENAMED_KEYS = {"dynamics": {"damping": "damping_mode"}, "solver": {"damping": "step_scale"}}
-_CONSTRAINT_KEYS = {"time_s", "kind", "target", "group", "width_s", "curve", "ease_out_s", "label"}
+_CONSTRAINT_KEYS = {"time_s", "kind", "target", "group", "width_s", "curve", "ease_out_s", "label", "falloff_m"}
 
 
 def _renamed(table: dict, section: str, where: str) -> dict:
@@ -193,6 +195,10 @@ class Shot:
         tt = target if isinstance(target, dict) else {}
         _keys(tt, _TARGET_KEYS, f"{where}.target")
         group = vertex_group(self.rig, c["group"], where=f"{where}.group") if "group" in c else None
+        falloff = _number(c, "falloff_m", where) if "falloff_m" in c else defaults.FALLOFF_M
+        if "falloff_m" in c and (kind == "pose" or falloff < 0):
+            raise KDInputError(f"{where}.falloff_m: expected non-negative metres on a subset, velocity or "
+                               f"end_effector constraint, got {falloff!r} on a {kind} constraint")
         if kind in ("pose", "subset", "end_effector"):
             if "obj" in tt:
                 pose, _ = read_obj(self.path.parent / tt["obj"])
@@ -208,18 +214,18 @@ class Shot:
         if kind == "subset":
             if group is None:
                 raise KDInputError(f"{where}: a subset constraint needs 'group'")
-            return subset_constraint(t, pose, group, basis, num_vertices=n, label=label)
+            return subset_constraint(t, pose, group, basis, num_vertices=n, falloff_m=falloff, label=label)
         if kind == "end_effector":
             if group is None:
                 raise KDInputError(f"{where}: an end_effector constraint needs 'group' (its vertices)")
             point = np.asarray(tt["point_m"], dtype=np.float64) if "point_m" in tt else pose[group].mean(axis=0)
-            return end_effector_constraint(t, point, group, basis, num_vertices=n, label=label)
+            return end_effector_constraint(t, point, group, basis, num_vertices=n, falloff_m=falloff, label=label)
         if kind == "velocity":
             if "velocity_mps" in tt:
                 v = np.asarray(tt["velocity_mps"], dtype=np.float64)
             else:  # the kinematic velocity of the group: the KD motion passes through t with the animator's speed
                 v = traj.evaluate([t], 1)[1][0][group if group is not None else slice(None)]
-            return velocity_constraint(t, v, basis, group=group, num_vertices=n, label=label)
+            return velocity_constraint(t, v, basis, group=group, num_vertices=n, falloff_m=falloff, label=label)
         raise KDInputError(f"{where}.kind: {kind!r} unknown; expected pose, subset, velocity or end_effector")
 
 

@@ -142,6 +142,7 @@ def track_step(
     cen0: wp.array2d(dtype=wp.vec3),
     kp: wp.array(dtype=float),
     kd: wp.array(dtype=float),
+    rigid: wp.array(dtype=wp.int32),
     alpha: float,
     h: float,
     relative: int,
@@ -155,11 +156,16 @@ def track_step(
         v' = v* + h kp (x_K' − x − h v') + h kd (ẋ_K' − v')          (relative damping)
         v' = v* + h kp (x_K' − x − h v') − h kd v'                   (absolute damping, the paper's −K_d ẋ)
     ⇒ v' = (v* + h kp (x_K' − x) [+ h kd ẋ_K']) / (1 + h kd + h² kp),   x' = x + h v'.
-    The division by 1 + h kd + h² kp ≥ 1 makes the step unconditionally stable for any gains.
+    The division by 1 + h kd + h² kp ≥ 1 makes the step unconditionally stable for any gains. Vertices with
+    ``rigid`` set take x_K, ẋ_K at t + h instead.
     """
     b, i = wp.tid()
     r0 = rows[b] + off0
     r1 = rows[b] + off1
+    if rigid[i] != 0:  # a rigid part (teeth, eyes) follows the kinematic trajectory exactly
+        x[b, i] = xk[r1, i]
+        v[b, i] = vk[r1, i]
+        return
     xi = x[b, i]
     vi = v[b, i]
     start = vertex_offsets[i]

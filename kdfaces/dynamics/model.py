@@ -35,6 +35,23 @@ def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.bincount(f.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
 
 
+def _mask(value, n: int) -> np.ndarray | None:
+    """A (n,) bool mask from a mask or vertex indices (None: none)."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise KDInputError(f"rigid: expected a ({n},) mask, got shape {a.shape}")
+        return a.copy()
+    idx = a.astype(np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise KDInputError(f"rigid: vertex indices must lie in [0, {n})")
+    out = np.zeros(n, dtype=bool)
+    out[idx] = True
+    return out
+
+
 def _per_vertex(value, n: int, what: str) -> np.ndarray:
     a = np.asarray(value, dtype=np.float64)
     if a.ndim == 0:
@@ -62,6 +79,7 @@ class FaceModel:
         rotation: how cluster rotations are fitted: "svd3" (polar part of A_pq from Warp's svd3, float64) or
             "iterative" (Müller et al. 2016, warm-started from the previous step; several times faster).
         rotation_iterations: fixed-point iterations per step for "iterative".
+        rigid: vertices that follow x_K exactly (rigid parts: teeth, eyes), shape (N,), bool, or None (none).
     """
 
     mass: np.ndarray
@@ -75,6 +93,7 @@ class FaceModel:
     diameter: float
     rotation: str = "svd3"
     rotation_iterations: int = 2
+    rigid: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.mass)
@@ -91,6 +110,13 @@ class FaceModel:
             raise KDInputError(f"rotation: expected one of {ROTATION_METHODS}, got {self.rotation!r}")
         if self.rotation_iterations < 1:
             raise KDInputError(f"rotation_iterations: expected an integer >= 1, got {self.rotation_iterations}")
+        if self.rigid is not None and np.shape(self.rigid) != (n,):
+            raise KDInputError(f"rigid: expected a (N,) = ({n},) mask, got shape {np.shape(self.rigid)}")
+
+    @property
+    def rigid_mask(self) -> np.ndarray:
+        """(N,) bool: the vertices that follow x_K exactly."""
+        return np.zeros(self.num_vertices, dtype=bool) if self.rigid is None else np.asarray(self.rigid, dtype=bool)
 
     @property
     def num_vertices(self) -> int:
@@ -123,7 +149,7 @@ class FaceModel:
                shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA, rings: int = defaults.CLUSTER_RINGS,
                cluster_centers="cover", areal_density_kg_m2: float = defaults.AREAL_DENSITY_KG_M2, mass=None,
                damping_mode: str = defaults.DAMPING_MODE, rotation: str = "svd3",
-               rotation_iterations: int = 2) -> FaceModel:
+               rotation_iterations: int = 2, rigid=None) -> FaceModel:
         """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3) int.
 
         Args:
@@ -137,6 +163,7 @@ class FaceModel:
             mass: [kg], scalar (uniform) or (N,); overrides the areal density.
             damping_mode: "relative" (damps ẋ − ẋ_K) or "absolute" (the paper's −K_d·ẋ).
             rotation, rotation_iterations: cluster rotation fit, "svd3" or "iterative" (with its iterations).
+            rigid: vertices that follow x_K exactly: a (N,) bool mask or vertex indices (teeth, eyes).
         """
         settle_time, alpha, damping = settle_time_s, shape_matching_alpha, damping_mode
         areal_density = areal_density_kg_m2
@@ -162,7 +189,7 @@ class FaceModel:
         diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
         return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
                    shape_matching_alpha=float(alpha), damping_mode=damping, diameter=diameter, rotation=rotation,
-                   rotation_iterations=int(rotation_iterations))
+                   rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n))
 
     @classmethod
     def from_rig(cls, rig, **kwargs) -> FaceModel:

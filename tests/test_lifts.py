@@ -65,6 +65,8 @@ def test_an_end_effector_moves_its_point_exactly_by_the_damped_step(default_rig)
     mu = 0.1
     e = surface.lift_for(jaw, falloff_m=0.05, weights=w).point(r, pinv_damping=mu)
     np.testing.assert_allclose(w @ e[jaw], r / (1 + mu**2), rtol=1e-9, atol=0)
+    # a dome over the jaw (peak ≈ 1.5× the step for 5 cm), not one piece (the lower teeth) flung far to move the mean
+    assert np.linalg.norm(e, axis=1).max() <= 2.5 * np.linalg.norm(r)
     sharp = np.zeros_like(e)
     sharp[jaw] = r
     assert seam_ratio(sharp, default_rig.faces) == pytest.approx(1.0)
@@ -107,6 +109,23 @@ def test_other_pieces_stay_still_and_non_manifold_meshes_work():
     assert (e[n:2 * n + 1] == 0).all()  # the other piece and the fin
     np.testing.assert_array_equal(e[col], e[dup])  # split copies move together
     assert np.abs(e[dup]).max() > 0  # ... and the falloff reaches across the seam
+
+
+def test_an_end_effector_on_two_pieces_moves_each_share_by_the_step():
+    """A point over a patch and a small separate plate inside the falloff (a jaw and its teeth): each piece's share
+    of the point moves by r, the plate rigidly, instead of the free plate taking the whole step."""
+    v, f, _ = patch(n=11, size_m=0.1, jitter=0.0)
+    plate = np.array([[0.05, 0.05, -0.01], [0.06, 0.05, -0.01], [0.05, 0.06, -0.01]])
+    verts = np.concatenate([v, plate])
+    faces = np.concatenate([f, [[len(v), len(v) + 1, len(v) + 2]]])
+    centre = np.flatnonzero(np.linalg.norm(v[:, :2] - 0.05, axis=1) < 0.015)
+    idx = np.concatenate([centre, len(v) + np.arange(3)])
+    w = np.full(len(idx), 1.0 / len(idx))
+    r = np.array([0.0, 0.0, 0.002])
+    e = Surface(verts, faces).lift_for(idx, falloff_m=0.03, weights=w).point(r)
+    np.testing.assert_allclose(w @ e[idx], r, rtol=1e-9)
+    np.testing.assert_allclose(e[len(v):], np.tile(r, (3, 1)), rtol=1e-6)  # the plate: rigidly by r
+    np.testing.assert_allclose(e[centre].mean(axis=0), r, rtol=1e-9)  # the patch's share: by r too
 
 
 @pytest.fixture(scope="module")

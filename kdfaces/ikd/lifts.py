@@ -14,7 +14,9 @@ surface instead:
   ``min_quad_with_fixed`` with S and the far vertices fixed);
 - ``end_effector`` p(x) = Σ_j w_j x_j: the minimal-energy displacement with J e = r — eq. 5's pseudo-inverse taken
   in the metric Q instead of the Euclidean one, so the paper's minimal-norm step becomes a minimal-energy step —
-  damped like J⁺: e/(1 + μ²). It is one fixed shape g (the solve with J g = 1) times r.
+  damped like J⁺: e/(1 + μ²). It is one fixed shape g (the solve with J g = 1) times r. When the point's vertices
+  lie on several pieces of the mesh (a jaw group with its teeth), each piece moves its own share of the point by
+  r; a piece inside the falloff with no fixed vertex (the teeth) then translates rigidly with the rest.
 
 The factorisation (``min_quad_with_fixed_precompute``) is done once per constraint, when the constraint is first
 lifted; every later lift is a back-substitution (the same spirit as the paper's LU reuse, §4.2).
@@ -50,10 +52,10 @@ ENERGIES = ("biharmonic", "harmonic")
 EXACT_GEODESIC_MAX_VERTICES = 10_000
 #: Vertices closer than this fraction of the bounding-box diagonal are welded (exact duplicates in practice).
 WELD_FRACTION = 1e-9
-#: Regulariser κ = (REGULARIZATION / diameter)^p · M (p = 4 biharmonic, 2 harmonic), added only where an
-#: end effector's falloff region covers a whole piece of the mesh (nothing pins the energy's constant null space
-#: there but J e = r): its decay length is 1/REGULARIZATION diameters, far beyond the piece.
-REGULARIZATION = 1e-3
+#: Regulariser ε·(mean diagonal of Q / mean vertex area)·M, added only where an end effector's falloff region
+#: covers a whole piece of the mesh (nothing but J e = r pins the energy's constant null space there): small enough
+#: to leave the minimal-energy shape alone, large enough for the Cholesky factorisation.
+REGULARIZATION = 1e-10
 
 
 def mesh_edges(faces) -> np.ndarray:
@@ -110,9 +112,18 @@ class SurfaceLift:
         self.solves = 0
         self._shape = None
         if self.weights is not None:
-            # J as one row over the welded vertices: Σ_j w_j e_j (a welded vertex sums its copies' weights)
+            # J over the welded vertices, Σ_j w_j e_j (a welded vertex sums its copies' weights), split into one row
+            # per connected piece of the mesh that holds end-effector vertices: each piece moves its share W_p of the
+            # point by the whole step (Σ_p W_p = 1, so J e = r). One row for all would let a piece with no fixed
+            # vertex (a set of teeth inside the falloff) take the whole step as a free rigid translation.
             w = np.bincount(surface.weld[self.indices], weights=self.weights, minlength=n)
-            aeq = sp.csc_matrix(w[None, :])
+            piece = surface.pieces
+            share = np.bincount(piece, weights=w, minlength=piece.max() + 1)
+            rows = np.flatnonzero(share != 0)
+            lookup = np.full(len(share), -1)
+            lookup[rows] = np.arange(len(rows))
+            on = np.flatnonzero((w != 0) & (lookup[piece] >= 0))
+            aeq = sp.csc_matrix((w[on], (lookup[piece[on]], on)), shape=(len(rows), n))
             q = surface.energy_matrix
             if not surface.anchored(self._free, self._known):
                 q = surface.regularized_energy_matrix
@@ -120,7 +131,7 @@ class SurfaceLift:
             igl.min_quad_with_fixed_precompute(q, self._known, aeq, True, self._data)
             self.factorizations += 1
             g = igl.min_quad_with_fixed_solve(self._data, np.zeros((n, 1)), np.zeros((len(self._known), 1)),
-                                              np.ones((1, 1)))
+                                              share[rows][:, None])
             self.solves += 1
             self._shape = np.asarray(g, dtype=np.float64)[:, 0]  # J g = 1: the minimal-energy unit step
         elif len(self._free):
@@ -216,6 +227,7 @@ class Surface:
         self._mass = None
         self._graph = None
         self._diagonals = None
+        self._pieces = None
 
     @classmethod
     def from_trajectory(cls, trajectory, *, energy: str = defaults.LIFT_ENERGY) -> Surface | None:
@@ -252,8 +264,7 @@ class Surface:
     def regularized_energy_matrix(self) -> sp.csc_matrix:
         """Q + κ·M (see :data:`REGULARIZATION`): positive definite even on a piece without fixed vertices."""
         q = self.energy_matrix
-        power = 4 if self.energy == "biharmonic" else 2
-        kappa = (REGULARIZATION / max(self.diameter, 1e-300)) ** power
+        kappa = REGULARIZATION * max(float(np.abs(q.diagonal()).mean()), 1e-300) / float(self._mass.mean())
         return (q + sp.diags(kappa * self._mass)).tocsc()
 
     def anchored(self, free, known) -> bool:
@@ -338,6 +349,13 @@ class Surface:
             self._lifts[key] = lift
             self.factorizations += lift.factorizations
         return lift
+
+    @property
+    def pieces(self) -> np.ndarray:
+        """The connected piece of each welded vertex (mesh edges), shape (welded N,) int."""
+        if self._pieces is None:
+            self._pieces = csgraph.connected_components(self._edge_graph(), directed=False)[1].astype(np.int64)
+        return self._pieces
 
     @property
     def solves(self) -> int:

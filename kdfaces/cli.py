@@ -20,7 +20,7 @@ from pathlib import Path
 
 from .errors import KDError
 
-__all__ = ["main", "build_parser", "configure_output", "execute", "peak_memory_bytes"]
+__all__ = ["main", "build_parser", "configure_output", "execute", "command", "peak_memory_bytes"]
 
 
 def configure_output(*, verbose: bool = False) -> None:
@@ -52,9 +52,9 @@ def configure_output(*, verbose: bool = False) -> None:
 
 def _import_renderer(verbose: bool) -> None:
     """Import pyvista/VTK now, with SIGINT and SIGTERM held back: an interrupt must never land inside VTK's import
-    (it can crash the interpreter there); it is delivered right after."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    (it turns into an ImportError or a crash there); it is only recorded, and raised right after."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, _record_signal) for s in held}
     try:
         import pyvista  # noqa: F401
         from vtkmodules.vtkCommonCore import vtkLogger
@@ -62,12 +62,46 @@ def _import_renderer(verbose: bool) -> None:
         if not verbose:
             vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt
 
 
 def peak_memory_bytes() -> int:
     """Peak resident memory of this process so far [bytes]."""
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+_INTERRUPTED = threading.Event()
+
+
+def _on_signal(signum, frame):
+    _INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def _record_signal(signum, frame):
+    _INTERRUPTED.set()
+
+
+def command(prog: str, build, argv, *, renders) -> int:
+    """Parse ``argv`` with ``build()`` and :func:`execute` it, with Ctrl-C and SIGTERM taken over from the first
+    moment (before any heavy library is imported, so none can swallow the interrupt unnoticed)."""
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    _INTERRUPTED.clear()
+    try:
+        try:
+            args = build().parse_args(argv)
+        except KeyboardInterrupt:
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
+        if getattr(args, "out", "") is None and getattr(args, "shot", None):
+            args.out = str(Path("kd-out") / Path(args.shot).stem)
+        return execute(prog, args, renders=renders(args))
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def execute(prog: str, args, *, renders: bool = False) -> int:
@@ -76,17 +110,12 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     from .io.atomic import OutputFolder
     from .resources import format_bytes
 
-    configure_output(verbose=getattr(args, "verbose", False))
-    interrupted = threading.Event()
-
-    def on_signal(signum, frame):
-        interrupted.set()
-        raise KeyboardInterrupt
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    interrupted = _INTERRUPTED
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     folder = None
     t0 = time.perf_counter()
     try:
+        configure_output(verbose=getattr(args, "verbose", False))
         if renders:
             _import_renderer(getattr(args, "verbose", False))
         final = getattr(args, "out", None)
@@ -221,10 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """``kdfaces …``: parse ``argv`` and run the command (see :func:`execute`); returns the exit status."""
-    args = build_parser().parse_args(argv)
-    if getattr(args, "out", "") is None and getattr(args, "shot", None):
-        args.out = str(Path("kd-out") / Path(args.shot).stem)
-    return execute("kdfaces", args, renders=args.command in ("demo", "run", "render", "view"))
+    return command("kdfaces", build_parser, argv,
+                   renders=lambda args: args.command in ("demo", "run", "render", "view"))
 
 
 if __name__ == "__main__":

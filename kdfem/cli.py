@@ -6,16 +6,19 @@ import argparse
 import sys
 
 from kdfaces import defaults
-from kdfaces.cli import execute
+from kdfaces.cli import command
 
 __all__ = ["main", "build_parser"]
 
 
 def _demo(args) -> dict:
+    from kdfaces.defaults import user_cache_dir
+
     from .demo import run_hat_demo
 
     return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
-                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads)
+                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads,
+                        cache_dir=user_cache_dir() / "tets")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,13 +45,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _window(args) -> dict:
     """The ``kdfem window`` handler: runs :func:`~kdfem.modal.window.window_report`; returns the window.json dict."""
+    from kdfaces.defaults import user_cache_dir
+
     from .modal.window import window_report
 
     run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max,
                         rayleigh_alpha=args.alpha, rayleigh_beta=args.beta, edge_length_fac=args.edge_length_fac,
                         scale=args.scale, attach_distance_m=args.attach_distance, attach_below_m=args.attach_below,
                         modes=args.modes, nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride,
-                        progress=True)
+                        progress=True, cache_dir=user_cache_dir() / "tets")
     return run.result
 
 
@@ -81,8 +86,7 @@ def _add_window_parser(subparsers):
 
 def main(argv=None) -> int:
     """``kdfem …``: parse ``argv`` and run the command (see :func:`kdfaces.cli.execute`); returns the exit status."""
-    args = build_parser().parse_args(argv)
-    return execute("kdfem", args, renders=True)
+    return command("kdfem", build_parser, argv, renders=lambda args: True)
 
 
 if __name__ == "__main__":

@@ -35,12 +35,13 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     """The default head nods and turns wearing the floppy hat: rigid | KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png and summary.json; returns the summary. ``window_s`` [s]
-    is the KD window δ (``"auto"``: the §5.3 window) — or ``"adaptive"``: each frame's own window from the hat's modal envelope
-    (:meth:`~kdfem.fem.HatSystem.adaptive_windows`), and ``summary.json``'s ``kd`` adds ``steps_adaptive``,
-    ``steps_global`` (with the §5.3 automatic window), ``max_error_vs_full_m`` (‖·‖ over all nodes, every frame) and
-    ``epsilon_m``; ``step_s`` [s] the step; every ``frame_stride``-th frame of the demo animation is
-    evaluated. The default hat's tets ship in ``meshes/``; another ``edge_length_fac`` meshes the hat once and keeps
-    the tets in ``cache_dir`` by content hash (pytetwild's output differs run to run), when one is given.
+    is the KD window δ (``"auto"``: the §5.3 window) — or ``"adaptive"``: each frame's own window from the hat's
+    modal envelope (:meth:`~kdfem.fem.HatSystem.adaptive_windows`), and ``summary.json``'s ``kd`` adds
+    ``steps_adaptive``, ``steps_global`` (with the §5.3 automatic window), ``max_error_vs_full_m`` (‖·‖ over all
+    nodes, every frame) and ``epsilon_m``; ``step_s`` [s] the step; every ``frame_stride``-th frame of the demo
+    animation is evaluated. The default hat's tets ship in ``meshes/``; another ``edge_length_fac`` meshes the hat
+    once and keeps the tets in ``cache_dir`` by content hash (pytetwild's output differs run to run), when one is
+    given.
     """
     window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig

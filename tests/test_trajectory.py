@@ -103,3 +103,17 @@ def test_one_off_passes_leave_the_sample_cache_alone(default_rig):
     for a, b in zip(traj.scan(t), traj.evaluate(t)):  # the scan is the same evaluation
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-15)
     assert len(traj._cache) == 5
+
+
+def test_scans_of_lower_orders_skip_the_derivatives_but_not_a_bit_of_the_rest(default_rig):
+    # positions alone (FaceSystem.observe's rigid parts) and positions + velocities (bakes, adaptive windows) come
+    # from the same arithmetic as the full evaluation: bit for bit, with the head skinned
+    smile = ShapeTrack(("mouthSmileLeft",), KeyframeCurve.create([0, 0.5, 1.0], [[0], [1], [0.2]]))
+    traj = KinematicTrajectory(default_rig, FaceAnimation(tracks=(smile,), skeleton=head_turn()))
+    t = np.array([0.13, 0.5, 0.77])
+    full = traj.scan(t, 2)
+    for order in (0, 1):
+        part = traj.scan(t, order)
+        assert len(part) == order + 1
+        for a, b in zip(part, full):
+            np.testing.assert_array_equal(a, b)

@@ -241,11 +241,11 @@ class KinematicTrajectory:
         return self.evaluate(times, order=0)[0]
 
     def _evaluate_chunk(self, t, order: int = 2):
-        """x_K, ẋ_K, ẍ_K at ``t``; with ``order`` 0 only x_K is computed (the derivatives are None)."""
-        w = self.weights(t, 2 if order else 0)
+        """x_K, ẋ_K, ẍ_K at ``t``; derivatives above ``order`` are not computed (None)."""
+        w = self.weights(t, order)
         y = self.rig.blend(w[0])
-        dy = self.rig.blend_offsets(w[1]) if order else None
-        ddy = self.rig.blend_offsets(w[2]) if order else None
+        dy = self.rig.blend_offsets(w[1]) if order >= 1 else None
+        ddy = self.rig.blend_offsets(w[2]) if order >= 2 else None
         skel = self.rig.skeleton
         if self._joint_override:
             G = joint_transforms(skel, self._joints.evaluate(t, 2))
@@ -256,6 +256,6 @@ class KinematicTrajectory:
         if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
             r = self.animation.skeleton.root_translation(t, 2)
             y = y + r[0][:, None]
-            if order:
-                dy, ddy = dy + r[1][:, None], ddy + r[2][:, None]
+            dy = None if dy is None else dy + r[1][:, None]
+            ddy = None if ddy is None else ddy + r[2][:, None]
         return y, dy, ddy

@@ -124,7 +124,8 @@ def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
 
     Args:
         transforms: triplet of joint world transforms (T, J, 4, 4) from :func:`joint_transforms`.
-        y, dy, ddy: blend-shape positions [m] and their time derivatives, each (T, N, 3).
+        y, dy, ddy: blend-shape positions [m] and their time derivatives, each (T, N, 3); ``dy``, ``ddy`` may be
+            None (then so are ẋ, ẍ).
     Returns:
         x, ẋ, ẍ, each (T, N, 3): x = Σ_j w_ij G_j ỹ + (1 − Σ_j w_ij) y, differentiated by the product rule:
         ẋ = Σ_j w_ij (Ġ_j ỹ + G_j ẏ) + r ẏ,  ẍ = Σ_j w_ij (G̈_j ỹ + 2 Ġ_j ẏ + G_j ÿ) + r ÿ  (r = 1 − Σ_j w_ij).
@@ -145,5 +146,7 @@ def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
     if dy is None:
         return x, None, None
     dx = apply(dG, y, True) + apply(G, dy, False) + rest * dy
+    if ddy is None:
+        return x, dx, None
     ddx = apply(ddG, y, True) + 2.0 * apply(dG, dy, False) + apply(G, ddy, False) + rest * ddy
     return x, dx, ddx

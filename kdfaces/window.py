@@ -291,13 +291,21 @@ def _face_kicks(model, trajectory, origin: float, h: float, J: int, vertex_bin: 
     order = np.argsort(vertex_bin[free], kind="stable")
     bins_sorted = vertex_bin[free][order]
     starts = np.flatnonzero(np.r_[True, np.diff(bins_sorted) != 0])
-    kd = model.kd[free][order]
+    idx = np.flatnonzero(free)[order]  # free vertices grouped by bin
+    kd = np.broadcast_to(model.kd, free.shape)[idx]
     absolute = getattr(model, "damping_mode", "relative") == "absolute"
     Uv, Ud = np.zeros((B, J)), np.zeros((B, J))
-    for j0 in range(0, J, _SCAN_CHUNK):
-        j1 = min(J, j0 + _SCAN_CHUNK)
-        x, v = scan_trajectory(trajectory, origin + np.arange(j0, j1 + 1) * h, 1)
-        x, v = x[:, free][:, order], v[:, free][:, order]
+    prev = None  # the last sample of the previous chunk (each sample is evaluated once)
+    for s0 in range(0, J + 1, _SCAN_CHUNK):
+        x, v = scan_trajectory(trajectory, origin + np.arange(s0, min(J + 1, s0 + _SCAN_CHUNK)) * h, 1)
+        x, v = x[:, idx], v[:, idx]
+        if prev is not None:
+            x, v = np.concatenate([prev[0], x]), np.concatenate([prev[1], v])
+        j0 = s0 - (prev is not None)
+        prev = (x[-1:], v[-1:])
+        if len(x) < 2:
+            continue
+        j1 = j0 + len(x) - 1
         a = v[:-1] - v[1:]  # q̇ kick: ẋ_K(t) − ẋ_K(t + h)
         if absolute:
             a = a - (h * kd)[None, :, None] * v[1:]  # the absolute damper drags on ẋ_K itself

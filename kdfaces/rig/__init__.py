@@ -1,12 +1,15 @@
-"""Rigs: blend-shape meshes, ARKit names, vertex groups, the neck/head skeleton (FK, LBS) and single poses."""
+"""Rigs: blend-shape meshes, ARKit names, vertex groups, the neck/head skeleton (FK, LBS) and single poses;
+production-size test rigs by subdivision."""
 
 from .blendshapes import BlendshapeRig
 from .groups import GROUP_SHAPES, vertex_group
 from .names import ARKIT_NAMES, alias_key, canonical_name, match_names
 from .poses import kinematic_pose, rig_pose
 from .skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms, skin
+from .subdivide import refine_faces, subdivide_rig
 
 __all__ = [
     "BlendshapeRig", "GROUP_SHAPES", "vertex_group", "ARKIT_NAMES", "alias_key", "canonical_name", "match_names",
     "kinematic_pose", "rig_pose", "HEAD_CHAIN_SPLIT", "Skeleton", "joint_transforms", "skin",
+    "subdivide_rig", "refine_faces",
 ]

@@ -5,6 +5,9 @@ Initial state at a window start t₀: the hat's **static equilibrium under gravi
 v = Ġ(t₀)·X_eq. It is exactly in equilibrium when the head's rotation leaves gravity's direction in the head frame
 unchanged (yaw), and close to it for moderate pitch/roll; starting from the sagged shape (not the stress-free
 rest shape) keeps the window from having to absorb the gravity sag transient.
+
+The head's transforms are evaluated once per window (``prepare``, one FK call for every step of every member) and
+carried by the state; a step only reads its row.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ class HatSystem:
     def __post_init__(self):
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
         self._steppers: dict[float, ImplicitEuler] = {}
+        self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare
 
     def stepper(self, step_s: float) -> ImplicitEuler:
         """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
@@ -65,17 +69,39 @@ class HatSystem:
         warn_renamed("HatSystem", "rigid", "observe_kinematic")
         return self.observe_kinematic(trajectory, times)
 
+    def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
+        """Evaluate the head's G, Ġ at every step of windows starting at ``start_times`` (B,) [s] (``steps`` steps
+        of ``step_s`` [s]) in one FK call; the states :meth:`initial_state` makes next read them."""
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        grid = t0[None, :] + float(step_s) * np.arange(int(steps) + 1)[:, None]  # (S + 1, B)
+        G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(grid.ravel())
+        shape = (*grid.shape, 4, 4)
+        self._pending = (trajectory, t0, float(step_s), (G.reshape(shape), dG.reshape(shape)))
+
     def initial_state(self, trajectory, times: np.ndarray) -> FEMState:
         """The rest equilibrium carried rigidly by the head at ``times`` (B,) [s], with the head's rigid velocity."""
-        G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(times)
+        t0 = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        p = self._pending
+        if p is not None and p[0] is trajectory and np.array_equal(p[1], t0):
+            head = (*p[3], trajectory, t0, p[2])  # G, Ġ, and the window they belong to
+            G, dG = head[0][0], head[1][0]
+        else:
+            head = None
+            G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(t0)
         x = apply_frame(G, self.rest_equilibrium)
         v = apply_frame(dG, self.rest_equilibrium)  # Ġ·X: rotation rate times X plus translation rate
-        return FEMState(x=x, v=v)
+        return FEMState(x=x, v=v, head=head)
 
     def step(self, state: FEMState, trajectory, times: np.ndarray, step_s: float) -> None:
         """One implicit Euler step of ``step_s`` [s] for every member, attached nodes following the head."""
-        G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(np.asarray(times, dtype=np.float64)
-                                                                           + step_s)
+        k = state.steps + 1
+        hd = state.head
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if (hd is not None and k < len(hd[0]) and hd[2] is trajectory and abs(hd[4] - step_s) <= 1e-12 * step_s
+                and np.abs(t - (hd[3] + (k - 1) * hd[4])).max() <= 1e-9 * max(1.0, float(np.abs(t).max()))):
+            G1, dG1 = hd[0][k], hd[1][k]
+        else:  # not prepared, or a different step: evaluate the head at t + h
+            G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(t + step_s)
         self.stepper(step_s).step(state, G1, dG1)
 
     def observe(self, state: FEMState) -> np.ndarray:

@@ -26,6 +26,9 @@ from .model import FEMModel
 
 __all__ = ["HatSystem"]
 
+#: grid samples of the head's transforms kept per trajectory content (3 × 4 × 4 float64 each: ~4 MB)
+_HEAD_CACHE_ROWS = 10_000
+
 
 @dataclass
 class HatSystem:
@@ -49,6 +52,7 @@ class HatSystem:
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
         self._steppers: dict[float, ImplicitEuler] = {}
         self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare
+        self._head_cache: dict = {}  # head transforms on the step grid, by content version (head_on_grid)
 
     def stepper(self, step_s: float) -> ImplicitEuler:
         """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
@@ -69,14 +73,44 @@ class HatSystem:
         warn_renamed("HatSystem", "rigid", "observe_kinematic")
         return self.observe_kinematic(trajectory, times)
 
+    def head_on_grid(self, trajectory, start_times, steps: int, step_s: float):
+        """G, Ġ, G̈ of the head, each (S + 1, B, 4, 4), at t₀ + k·h for windows starting at ``start_times`` (B,)
+        [s], k = 0..``steps``, h = ``step_s`` [s].
+
+        Times on the grid trajectory.start + j·h (windows ending on frames) are cached by the trajectory's content
+        (``version``) and h, so a scrub that moves the window by a frame evaluates FK only for the new samples."""
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        h = float(step_s)
+        grid = t0[None, :] + h * np.arange(int(steps) + 1)[:, None]  # (S + 1, B)
+        motion = head_motion(trajectory, joint=self.joint)
+        version = getattr(motion.trajectory, "version", None)
+        origin = float(getattr(motion.trajectory, "start", 0.0))
+        j = np.round((grid - origin) / h)
+        on_grid = np.abs(origin + j * h - grid).max() <= 1e-9 * max(1.0, float(np.abs(grid).max()))
+        if version is None or not on_grid:
+            G = motion.transforms(grid.ravel())
+            return tuple(g.reshape(*grid.shape, 4, 4) for g in G)
+        cache = self._head_cache
+        if cache.get("key") != (version, h, self.joint):
+            cache.clear()
+            cache.update(key=(version, h, self.joint), rows={})
+        rows = cache["rows"]
+        j = j.astype(np.int64)
+        missing = np.setdiff1d(np.unique(j), np.fromiter(rows.keys(), np.int64, len(rows)))
+        if len(missing):
+            if len(rows) + len(missing) > _HEAD_CACHE_ROWS:
+                rows.clear()
+            for jj, G, dG, ddG in zip(missing.tolist(), *motion.transforms(origin + missing * h), strict=True):
+                rows[jj] = np.stack([G, dG, ddG])
+        stacked = np.stack([rows[jj] for jj in j.ravel().tolist()], axis=1)  # (3, (S+1)·B, 4, 4)
+        return tuple(stacked[o].reshape(*grid.shape, 4, 4) for o in range(3))
+
     def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
         """Evaluate the head's G, Ġ at every step of windows starting at ``start_times`` (B,) [s] (``steps`` steps
-        of ``step_s`` [s]) in one FK call; the states :meth:`initial_state` makes next read them."""
+        of ``step_s`` [s]) at once (:meth:`head_on_grid`); the states :meth:`initial_state` makes next read them."""
         t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
-        grid = t0[None, :] + float(step_s) * np.arange(int(steps) + 1)[:, None]  # (S + 1, B)
-        G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(grid.ravel())
-        shape = (*grid.shape, 4, 4)
-        self._pending = (trajectory, t0, float(step_s), (G.reshape(shape), dG.reshape(shape)))
+        G, dG, _ = self.head_on_grid(trajectory, t0, steps, step_s)
+        self._pending = (trajectory, t0, float(step_s), (G, dG))
 
     def initial_state(self, trajectory, times: np.ndarray) -> FEMState:
         """The rest equilibrium carried rigidly by the head at ``times`` (B,) [s], with the head's rigid velocity."""

@@ -1,4 +1,5 @@
-"""The ``kdfem`` command: ``kdfem demo`` (the floppy hat) and ``kdfem window [MESH]`` (the modal window report)."""
+"""The ``kdfem`` command: ``kdfem demo`` (the floppy hat), ``kdfem window [MESH]`` (the modal window report) and
+``kdfem view`` (the hat's scrubbing viewer)."""
 
 from __future__ import annotations
 
@@ -40,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)
+    from .viewer import add_view_parser
+
+    add_view_parser(sub)
     return ap
 
 
@@ -93,8 +97,12 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        name = "window.json" if args.command == "window" else "summary.json"
-        print(f"kdfem {args.command}: wrote {Path(args.out) / name}")
+        if args.command == "view":
+            if summary.get("screenshot"):
+                print(f"kdfem view: wrote {summary['screenshot']} ({summary['kd_state_ms']:.1f} ms per KD state)")
+        else:
+            name = "window.json" if args.command == "window" else "summary.json"
+            print(f"kdfem {args.command}: wrote {Path(args.out) / name}")
     return 0
 
 

@@ -382,8 +382,9 @@ class FaceSystem:
             tasks = [self._fused_launch(state.chunks[k], part, parity, bake, off0, off1) for k, part in state.tasks]
         else:
             tasks = [self._parallel_launches(state.chunks[k], bake, off0, off1) for k, _ in state.tasks]
-        if len(tasks) == 1:
-            tasks[0]()
+        if len(tasks) == 1 or self._workers is None:  # (a state made before close() steps on one thread)
+            for task in tasks:
+                task()
         else:
             self._workers.run(tasks)
         if self.kernels == "fused":

@@ -13,11 +13,16 @@ quadratic dissipation potential; zero for rigid motion, βK at rest, so C = αM 
 assumes).
 
 Each iteration solves P Δv = −r with an SPD matrix P = (1 + hα)M + (h² + hβ)K_P and backtracks on E (Armijo),
-so a step never diverges: it decreases E monotonically. K_P starts as the rest stiffness corotated by the bone
-rotation, P = R A_rest Rᵀ with A_rest factored **once** (scipy ``splu``) and all members solved as one
-multi-right-hand-side solve. A member whose iteration contracts slowly (large local rotations of a floppy tip)
-switches to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-tet rotations; PSD), factored
-for that member and **reused** over the following iterations and steps until it contracts slowly again. Members
+so a step never diverges: it decreases E monotonically. The shared P is a reference stiffness rotated node by node,
+P = D A_ref Dᵀ, with A_ref = (1 + hα)M + (h² + hβ)K_ref factored **once** (scipy ``splu``), K_ref the rest
+stiffness or the PSD-projected tangent at a reference shape (the hat's sagged equilibrium, whose prestress a floppy
+hat feels), and D = diag(Q_i Q_ref,iᵀ) each free node's rotation from the reference to x_n (the polar rotation of
+the sum of its tets' rotations, a kernel): D is orthogonal and M is lumped, so P⁻¹ = D A_ref⁻¹ Dᵀ costs one solve,
+all members in one multi-right-hand-side solve. It follows a floppy tip's large local rotations, where rotating by
+the bone alone left the Newton iteration contracting slowly. A member whose iteration still contracts slowly switches
+to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-tet rotations; PSD), factored for that
+member and **reused** over the following iterations and steps until it contracts slowly again. The first guess
+extrapolates the velocity from the last two steps. Members
 stop iterating as soon as they converge (per-member mask): max|Δv|·h < ``tol``; an update already below the
 tolerance is taken without a line search (its inversion check is the next step's). A state that inverts an
 element, or a line search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
@@ -55,7 +60,8 @@ class FEMState:
     belongs to the state so that results never depend on what was simulated before. ``steps`` counts the steps
     taken; ``head``, when a KD system prepared the window, holds the bone transforms G, Ġ on its step grid, each
     (S + 1, B, 4, 4) (row k: time t₀ + k·h), so a step reads them instead of evaluating the skeleton, followed
-    by the trajectory, t₀ (B,) [s] and h [s] they were evaluated for.
+    by the trajectory, t₀ (B,) [s] and h [s] they were evaluated for. ``v_prev``: the velocities one step back (the
+    Newton iteration's first guess extrapolates from them).
     """
 
     x: np.ndarray
@@ -63,6 +69,7 @@ class FEMState:
     precond: list = field(default_factory=list)
     steps: int = 0
     head: tuple | None = None
+    v_prev: np.ndarray | None = None
 
 
 #: tets per thread of the blocked kernels on the CPU
@@ -184,17 +191,25 @@ class ImplicitEuler:
     ``slow`` [-]: contraction ratio ``|Δv_k|/|Δv_k−1|`` above which a member refactors its own warped matrix (also
     after a backtracked line search or ``force_it`` iterations; at most once per member and step);
     ``threads``: batch members are split over this many threads of one persistent pool (Warp launches and SuperLU
-    release the GIL).
+    release the GIL). ``reference``: positions (N, 3) [m] whose PSD-projected tangent stiffness, rotated per node
+    from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node).
     """
 
-    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.5,
-                 force_it: int = 12, threads: int = 1):
+    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.7,
+                 force_it: int = 12, threads: int = 1, reference: np.ndarray | None = None):
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
         self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
         self.c_m, self.c_k = 1 + h * model.rayleigh_alpha, h * h + h * model.rayleigh_beta
         self.M = sp.diags(self.c_m * m).tocsr()
-        A = self.M + self.c_k * model.rest_stiffness()
+        self._Q_ref = None
+        if reference is None:
+            K = model.rest_stiffness()
+        else:  # the (PSD-projected) tangent at a reference shape, e.g. the sagged equilibrium: its prestress counts
+            x_ref = np.asarray(reference, dtype=np.float64)
+            K = model.pattern.assemble(model.element_stiffness(x_ref[None], project=True)[0])
+            self._Q_ref = np.swapaxes(_Workspace(model, 1).rotations(x_ref[None])[2][0], -1, -2)  # Q_refᵀ (F, 3, 3)
+        A = self.M + self.c_k * K
         self.lus = [_factor_spd(A) for _ in range(self.threads)]  # one copy per thread
         self.m_free = m.reshape(-1, 3)[:, :1]
         self.g = np.asarray(model.gravity, dtype=np.float64)
@@ -325,14 +340,20 @@ class ImplicitEuler:
         if len(state.precond) != B:
             state.precond = [None] * B
         x_att1 = apply_frame(G1, md.mesh.nodes[att])
-        v1 = state.v.copy()
+        # the first guess: velocity extrapolated from the last two steps (one Newton iteration fewer per step)
+        v1 = state.v.copy() if state.v_prev is None else 2.0 * state.v - state.v_prev
         v1[:, att] = (x_att1 - state.x[:, att]) / h  # the attached positions at t + h are exact
         Aw, cw = rigid_velocity_field(G1, dG1)
         Rn, detn, Qn = self.workspace(B).rotations(state.x)
         if (detn <= 0).any():
             b = int(np.argmin(detn.min(axis=1)))
             raise SimulationBlowUpError(f"{where}: inverted element (det F = {detn.min():.3g}) in batch member {b}")
-        R = Qn if self.nodal else G1[:, :3, :3]
+        if not self.nodal:
+            R = G1[:, :3, :3]
+        elif self._Q_ref is None:
+            R = Qn
+        else:  # each node's rotation from the reference shape to x_n
+            R = Qn @ self._Q_ref
         chunks = [c for c in np.array_split(np.arange(B), min(self.threads, B)) if len(c)]
         if len(chunks) == 1 or self._pool is None:
             its = [self._iterate(self.lus[0], state, np.arange(B), v1, Rn, Aw, cw, R, where)]
@@ -342,6 +363,7 @@ class ImplicitEuler:
         self.iterations.append(max(its))
         state.x += h * v1
         state.x[:, att] = x_att1
+        state.v_prev = state.v.copy()
         state.v[:] = v1
         state.steps += 1
 

@@ -58,7 +58,8 @@ class HatSystem:
         """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
         key = round(float(step_s), 12)
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads)
+            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads,
+                                                reference=self.rest_equilibrium)
         return self._steppers[key]
 
     # --- KD protocol -------------------------------------------------------------------------------------------

@@ -279,7 +279,7 @@ class ImplicitEuler:
                 raise SimulationBlowUpError(f"{where}: inverted element (det F = {detF.min():.3g}) in batch member {b}")
         active = np.arange(len(members))
         prev = np.full(len(members), np.inf)
-        refactored = np.zeros(len(members), dtype=bool)
+        refactored = np.full(len(members), -self.force_it)  # iteration of each member's last refactorization
         it = 0
         while len(active):
             it += 1
@@ -321,11 +321,13 @@ class ImplicitEuler:
             conv = h * size * t < self.tol
             ratio = size / prev[a]
             prev[a] = size
-            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= self.force_it))
+            # refactor once per step where the iteration contracts slowly, and again every force_it iterations
+            fresh = it - refactored[a] >= self.force_it
+            slow = ~conv & fresh & ((t < 1) | (ratio > self.slow) | (it >= self.force_it))
             for j in np.flatnonzero(slow):
                 b = members[a[j]]
                 state.precond[b] = self._factor(xn[a[j]] + h * v[a[j]])
-                refactored[a[j]] = True
+                refactored[a[j]] = it
                 prev[a[j]] = np.inf
             active = a[~conv]
         v1[members] = v

@@ -3,13 +3,14 @@
 
 Positions are x = G(t)·(X_eq + U q): the rest equilibrium X_eq in the head joint's frame plus r modes U of the
 tangent stiffness K at X_eq (§5.3: "linearized forces at the equilibrium pose"; unit-length columns, M-orthogonal,
-m_i = U_iᵀMU_i, k_i, c_i = α m_i + β k_i as in eq. 24). The full FEM's step is backward Euler in the world,
+m_i = U_iᵀMU_i, k_i as in eq. 24), damped as the full FEM damps, C = Uᵀ(αM + βK_R)U with K_R its rest stiffness
+corotated by the tets' rotations at X_eq (an r × r matrix: K_R is not the tangent, so C is not diagonal). The full
+FEM's step is backward Euler in the world,
 M(x₁ − x₀ − h v₀)/h² = f(x₁) with v₀ = (x₀ − x₋₁)/h; rotating it into the head frame at t + h (elastic forces are
-objective: R₁ᵀ f(x₁) = −K U q₁ + M(R₁ᵀg − g) to first order, damping C U (q₁ − q₀)/h) and projecting on U gives,
-per mode,
+objective: R₁ᵀ f(x₁) = −K U q₁ + M(R₁ᵀg − g) to first order, damping C U (q₁ − q₀)/h) and projecting on U gives
 
-    (m_i/h² + c_i/h + k_i) q₁ = (m_i q̂_i)/h² + c_i q₀/h + h_i·(R₁ᵀg − g),
-    m_i q̂_i = Uᵢᵀ M R₁ᵀ(x₀ + h v₀ − p₁) − Uᵢᵀ M X_eq,
+    (diag(m)/h² + C/h + diag(k)) q₁ = b,   b_i = m_i q̂_i/h² + (C q₀)_i/h + h_i·(R₁ᵀg − g),
+    m_i q̂_i = Uᵢᵀ M R₁ᵀ(x₀ + h v₀ − p₁) − Uᵢᵀ M X_eq      (the r × r inverse is constant: one per step h),
 
 where every term is a contraction of the head's relative rotations (R₁ᵀR₀, R₁ᵀR₋₁: 3×3) and translations with
 precomputed tensors P_i = Σ_n m_n U_i,n X_nᵀ, Q_ij = Σ_n m_n U_i,n U_j,nᵀ and h_i = Σ_n m_n U_i,n, so a step costs
@@ -20,12 +21,13 @@ forces of the rotating frame; integrating the frame's motion exactly as the full
 G exactly) matters: backward Euler applied to the continuous fictitious forces instead doubles the hat's response in
 the first steps of a sharp nod.
 
-Positions are reconstructed from q in rotation-strain form (Huang et al. 2011 reconstruct shapes from per-element
-rotations and strains the same way): each tet's displacement gradient ∇u = Σ q_i ∇U_i is split into the rotation
-exp([w]×), w = axial(skew ∇u), and the strain sym ∇u, and the positions are the least-squares fit of their gradients
-to F = exp([w]×)(I + sym ∇u), one prefactored sparse solve (the same positions as X_eq + U q to first order; a hat
-tip swinging through a large angle then moves on its arc instead of along the tangent, which the linear modes alone
-get wrong by 12 % of the demo's peak swing, and by 4 % with the reconstruction).
+Positions are reconstructed from q in rotation-strain form (as the rotation-strain coordinates of Pan, Bao and
+Huang 2015 reconstruct shapes from per-element rotations and strains): each tet's displacement gradient
+∇u = Σ q_i ∇U_i is split into the rotation exp([w]×), w = axial(skew ∇u), and the strain sym ∇u, and the positions
+are the least-squares fit of their gradients to F = exp([w]×)(I + sym ∇u), one prefactored sparse solve (the same
+positions as X_eq + U q to first order; a hat tip swinging through a large angle then moves on its arc instead of
+along the tangent, which the linear modes alone get wrong by 12 % of the demo's peak swing, by 4 % with the
+reconstruction).
 
 A KD state starts at q = 0 with the head's rigid velocity (the rest equilibrium carried rigidly, as the full FEM's).
 A step is counted, not taken: the window is integrated when the state is observed, in one kernel launch for all
@@ -68,9 +70,10 @@ def _project(D: wp.mat33d, P: wp.array(dtype=wp.mat33d), Q: wp.array2d(dtype=wp.
 def modal_window_kernel(first: int, last: int, R: wp.array2d(dtype=wp.mat33d), p: wp.array2d(dtype=wp.vec3d),
                         dR0: wp.array(dtype=wp.mat33d), dp0: wp.array(dtype=wp.vec3d),
                         P: wp.array(dtype=wp.mat33d), Q: wp.array2d(dtype=wp.mat33d), hm: wp.array(dtype=wp.vec3d),
-                        m: wp.array(dtype=wp.float64), k: wp.array(dtype=wp.float64), c: wp.array(dtype=wp.float64),
+                        C: wp.array2d(dtype=wp.float64), Ainv: wp.array2d(dtype=wp.float64),
                         g: wp.vec3d, h: wp.float64, q: wp.array2d(dtype=wp.float64),
-                        q_prev: wp.array2d(dtype=wp.float64), q_next: wp.array2d(dtype=wp.float64)):
+                        q_prev: wp.array2d(dtype=wp.float64), q_next: wp.array2d(dtype=wp.float64),
+                        q_rhs: wp.array2d(dtype=wp.float64)):
     """Steps ``first``..``last`` − 1 of batch member b (the launch dimension) of the projected backward Euler of
     :mod:`kdfem.fem.reduced`: ``R``, ``p`` (S + 1, B) are the head's rotation and translation on the step grid,
     ``dR0``, ``dp0`` (B,) their rates at the window start (the initial rigid velocity); ``q`` holds q at step
@@ -102,8 +105,15 @@ def modal_window_kernel(first: int, last: int, R: wp.array2d(dtype=wp.mat33d), p
                 mq += h * (wp.ddot(Dm, P[i]) + wp.dot(hm[i], tm))
             else:
                 mq += x0 + wp.dot(hm[i], R1t * p[s, b] - tm) - _project(Dm, P, Q, q_prev, b, i)
-            rhs = mq / hh + c[i] * q[b, i] / h + wp.dot(hm[i], gd)
-            q_next[b, i] = rhs / (m[i] / hh + c[i] / h + k[i])
+            cq = wp.float64(0.0)
+            for j in range(r):
+                cq += C[i, j] * q[b, j]
+            q_rhs[b, i] = mq / hh + cq / h + wp.dot(hm[i], gd)
+        for i in range(r):
+            acc = wp.float64(0.0)
+            for j in range(r):
+                acc += Ainv[i, j] * q_rhs[b, j]
+            q_next[b, i] = acc
         for i in range(r):
             q_prev[b, i] = q[b, i]
             q[b, i] = q_next[b, i]
@@ -166,8 +176,10 @@ class ReducedHatSystem(HatSystem):
         # the full FEM damps with βK corotated by the tets' rotations (its rest stiffness, not the tangent):
         # c_i = α m_i + β U_iᵀ K_R U_i at the equilibrium
         K_R = md.pattern.assemble(md.warped_stiffness(md.rotations(X[None])[0])[0])
-        damping = md.rayleigh_alpha * basis.mass + md.rayleigh_beta * np.einsum("ij,ij->j", U, K_R @ U)
-        basis = dataclasses.replace(basis, damping=damping)
+        C = md.rayleigh_alpha * np.diag(basis.mass) + md.rayleigh_beta * (U.T @ (K_R @ U))  # (r, r), not diagonal
+        basis = dataclasses.replace(basis, damping=np.diag(C).copy())
+        self._C = C
+        self._Ainv: dict[float, object] = {}
         self.basis = basis
         Un = U.T.reshape(r, len(fr), 3)  # mode i at free node n
         mass = md.masses[fr]
@@ -179,9 +191,7 @@ class ReducedHatSystem(HatSystem):
         self._rs_setup(U)
         self._wp = dict(P=wp.array(P, dtype=wp.mat33d, device=d), Q=wp.array(Q, dtype=wp.mat33d, device=d),
                         hm=wp.array(hm, dtype=wp.vec3d, device=d),
-                        m=wp.array(basis.mass, dtype=wp.float64, device=d),
-                        k=wp.array(basis.stiffness, dtype=wp.float64, device=d),
-                        c=wp.array(basis.damping, dtype=wp.float64, device=d))
+                        C=wp.array(C, dtype=wp.float64, device=d))
 
     def _rs_setup(self, U):
         """Precompute the rotation-strain reconstruction (see :meth:`_reconstruct`)."""
@@ -242,6 +252,15 @@ class ReducedHatSystem(HatSystem):
         out = np.broadcast_to(X, (B, *X.shape)).copy()
         out[:, fr] = y.reshape(len(fr), B, 3).transpose(1, 0, 2)
         return out
+
+    def _step_matrix(self, h: float):
+        """(diag(m)/h² + C/h + diag(k))⁻¹ (r, r) for step ``h`` [s] (cached per step)."""
+        key = round(float(h), 12)
+        if key not in self._Ainv:
+            b = self.basis
+            A = np.diag(b.mass / h**2 + b.stiffness) + self._C / h
+            self._Ainv[key] = wp.array(np.linalg.inv(A), dtype=wp.float64, device=self.model.device)
+        return self._Ainv[key]
 
     def full(self) -> HatSystem:
         """The full FEM :class:`HatSystem` of the same model (for comparisons)."""
@@ -311,6 +330,7 @@ class ReducedHatSystem(HatSystem):
         wp.launch(modal_window_kernel, dim=B,
                   inputs=[state.done, state.steps, arr(G[..., :3, :3], wp.mat33d), arr(G[..., :3, 3], wp.vec3d),
                           arr(state.dG0[:, :3, :3], wp.mat33d), arr(state.dG0[:, :3, 3], wp.vec3d), w["P"], w["Q"],
-                          w["hm"], w["m"], w["k"], w["c"], wp.vec3d(*self.model.gravity), float(state.step_s), q,
-                          q_prev, wp.empty((B, r), dtype=wp.float64, device=d)], device=d)
+                          w["hm"], w["C"], self._step_matrix(state.step_s), wp.vec3d(*self.model.gravity),
+                          float(state.step_s), q, q_prev, wp.empty((B, r), dtype=wp.float64, device=d),
+                          wp.empty((B, r), dtype=wp.float64, device=d)], device=d)
         state.q, state.q_prev, state.done = q.numpy(), q_prev.numpy(), state.steps

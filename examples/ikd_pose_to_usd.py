@@ -50,7 +50,7 @@ def main(argv=None) -> dict:
 
     times = traj.frame_times if args.frames <= 0 else traj.frame_times[: args.frames]
     x = simulate_kd(system, result.trajectory, times, window_s)  # (F, N, 3) [m]: the IKD trajectory
-    usd = export_trajectory(args.out, x, times, kind="usd", faces=rig.faces, fps=traj.fps, name="tilt")
+    usd = export_trajectory(args.out, x, times, kind="usd", rig=rig, fps=traj.fps, name="tilt")
     summary = {"converged": result.converged, "iterations": result.iterations,
                "error_before_m": float(result.errors_before[0]), "error_after_m": float(result.errors_after[0]),
                "independent_check_m": float(check[0]), "usd": str(usd), "frames": len(times),

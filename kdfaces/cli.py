@@ -1,24 +1,40 @@
-"""The ``kdfaces`` command."""
+"""The ``kdfaces`` command, and what every command of the toolkit shares (:func:`execute`).
+
+Every run ends in one line: what was written, the wall time and the peak memory; or, for bad input, one line naming
+the file and field (exit status 2); or, for Ctrl-C or SIGTERM, one line saying nothing was written (exit status 130).
+Outputs go to a hidden sibling folder that is renamed into place only when the whole run succeeded, and that folder
+is created and checked before any computation.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
+import signal
 import sys
+import threading
+import time
+import warnings
 from pathlib import Path
 
 from .errors import KDError
 
-__all__ = ["main", "build_parser", "configure_output"]
+__all__ = ["main", "build_parser", "configure_output", "execute", "peak_memory_bytes"]
 
 
 def configure_output(*, verbose: bool = False) -> None:
     """The command-line tools' process settings (a library call never changes them): Warp's start-up banner, its
-    kernel-cache messages and its native "no CUDA driver" warning only with ``verbose``."""
+    kernel-cache messages, its native "no CUDA driver" warning and VTK's display warnings only with ``verbose``;
+    Python warnings as one line each."""
     import os
 
     import warp as wp
 
+    def one_line(message, category, filename, lineno, line=None):
+        return f"warning: {message}\n"
+
+    warnings.formatwarning = one_line
     if verbose:
         wp.init()
         return
@@ -34,14 +50,150 @@ def configure_output(*, verbose: bool = False) -> None:
         os.close(saved)
 
 
+def _import_renderer(verbose: bool) -> None:
+    """Import pyvista/VTK now, with SIGINT and SIGTERM held back: an interrupt must never land inside VTK's import
+    (it can crash the interpreter there); it is delivered right after."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        import pyvista  # noqa: F401
+        from vtkmodules.vtkCommonCore import vtkLogger
+
+        if not verbose:
+            vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+
+
+def peak_memory_bytes() -> int:
+    """Peak resident memory of this process so far [bytes]."""
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+def execute(prog: str, args, *, renders: bool = False) -> int:
+    """Run ``args.func(args)`` as a command: output folder first and all-or-nothing, one line per outcome, exit
+    status 0 (done), 2 (bad input or a failed computation) or 130 (interrupted)."""
+    from .io.atomic import OutputFolder
+    from .resources import format_bytes
+
+    configure_output(verbose=getattr(args, "verbose", False))
+    interrupted = threading.Event()
+
+    def on_signal(signum, frame):
+        interrupted.set()
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    folder = None
+    t0 = time.perf_counter()
+    try:
+        if renders:
+            _import_renderer(getattr(args, "verbose", False))
+        final = getattr(args, "out", None)
+        if final is not None:
+            folder = OutputFolder(final)
+            args.out = str(folder.__enter__())
+        summary = args.func(args)
+        if interrupted.is_set():  # an interrupt that a library swallowed (e.g. inside a C callback)
+            raise KeyboardInterrupt
+        if folder is not None:
+            args.out = str(folder.publish())
+    except KeyboardInterrupt:
+        if folder is not None:
+            folder.abandon()
+        print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+        return 130
+    except KDError as e:
+        if folder is not None:
+            folder.abandon()
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        if folder is not None:
+            folder.abandon()
+        print(f"{prog}: error: out of memory (peak {format_bytes(peak_memory_bytes())}); give a smaller budget with "
+              "--max-memory or a shorter window", file=sys.stderr)
+        return 2
+    except BaseException:
+        if folder is not None:
+            folder.abandon()
+        raise
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    wall = time.perf_counter() - t0
+    if getattr(args, "json", False):
+        print(json.dumps(summary, indent=2))
+    outputs = summary.get("outputs", []) if isinstance(summary, dict) else []
+    where = summary.get("screenshot") if isinstance(summary, dict) and summary.get("screenshot") else args.out
+    line = (f"{prog} {args.command}: wrote {where}" + (f" ({len(outputs)} outputs)" if outputs else "")
+            + f" in {wall:.1f} s, peak memory {format_bytes(peak_memory_bytes())}")
+    print(line, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
+    return 0
+
+
 def _demo(args) -> dict:
+    from .defaults import user_cache_dir
+    from .io.rigfiles import load_rig
     from .shots.demo import run_demo
 
-    return run_demo(args.out, rig=args.rig, threads=args.threads, exports=args.export)
+    rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
+    return run_demo(args.out, rig=rig, threads=args.threads, exports=args.export,
+                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True)
+
+
+def add_rig_units_option(parser) -> None:
+    """Add ``--rig-units {m,dm,cm,mm}``: the unit of the ``--rig`` file's numbers (default: the file's own)."""
+    from .io.rigfiles import UNITS
+
+    parser.add_argument("--rig-units", choices=sorted(UNITS), default=None,
+                        help="unit of the rig file's numbers (default: metres; MakeHuman folders decimetres)")
+
+
+def _export_rig_command(args) -> dict:
+    from .defaults import user_cache_dir
+    from .io.export import export_rig
+    from .io.rigfiles import load_rig
+    from .io.summary import write_summary
+
+    rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
+    out = Path(args.out)
+    animation = None
+    if args.animation is not None:
+        from .shots.shotfile import load_shot
+
+        shot = load_shot(args.animation, rig=rig)
+        animation = shot.animation
+    unit = rig.source_unit_m if args.unit == "rig" else 1.0
+    written = export_rig(rig, out, formats=args.format or ["obj", "gltf"], animation=animation, unit_m=unit)
+    summary = {
+        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes,
+                "diameter_m": rig.diameter, "max_delta_m": float(abs(rig.deltas).max())},
+        "outputs": [str(p.relative_to(out)) for p in written],
+    }
+    write_summary(out, summary)
+    return summary
+
+
+def add_export_rig_parser(subparsers) -> None:
+    """Add ``kdfaces export-rig [--rig R] [--out DIR] [--format obj|gltf|glb ...] [--json]``."""
+    ap = subparsers.add_parser("export-rig", help="write a rig as an OBJ folder and/or glTF for other tools")
+    ap.add_argument("--rig", default="default", help="rig: 'default', an .npz, an OBJ folder or a .gltf/.glb")
+    ap.add_argument("--rig-units", choices=("m", "dm", "cm", "mm"), default=None,
+                    help="unit of the rig file's numbers (default: metres)")
+    ap.add_argument("--unit", choices=("m", "rig"), default="m",
+                    help="write metres (default) or the rig file's own unit (OBJ)")
+    ap.add_argument("--animation", metavar="SHOT.toml", default=None,
+                    help="also write this shot's animation as glTF morph-weight animation")
+    ap.add_argument("--out", default="kd-out/rig", help="output folder (default kd-out/rig)")
+    ap.add_argument("--format", action="append", choices=("obj", "gltf", "glb"),
+                    help="obj, gltf or glb (repeatable; default obj and gltf)")
+    ap.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    ap.set_defaults(func=_export_rig_command)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .io.export import add_export_option, add_export_rig_parser
+    from .io.export import add_export_option
     from .shots.render import add_render_parser
     from .shots.run import add_run_parser
     from .viz.viewer import add_view_parser
@@ -52,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="run the built-in demo shot on the default rig")
     demo.add_argument("--out", default="kd-out/demo", help="output folder (default kd-out/demo)")
     demo.add_argument("--rig", default="default", help="rig: 'default', an .npz, or an OBJ folder")
+    add_rig_units_option(demo)
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
     add_export_option(demo)
@@ -64,20 +217,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """``kdfaces …``: parse ``argv`` and run the command (see :func:`execute`); returns the exit status."""
     args = build_parser().parse_args(argv)
-    configure_output(verbose=args.verbose)
-    try:
-        summary = args.func(args)
-    except KDError as e:
-        print(f"kdfaces: error: {e}", file=sys.stderr)
-        return 2
-    if getattr(args, "json", False):
-        print(json.dumps(summary, indent=2))
-    elif getattr(args, "out", None):
-        print(f"kdfaces {args.command}: wrote {Path(args.out) / 'summary.json'}")
-    elif isinstance(summary, dict) and summary.get("screenshot"):
-        print(f"kdfaces {args.command}: wrote {summary['screenshot']}")
-    return 0
+    if getattr(args, "out", "") is None and getattr(args, "shot", None):
+        args.out = str(Path("kd-out") / Path(args.shot).stem)
+    return execute("kdfaces", args, renders=args.command in ("demo", "run", "render", "view"))
 
 
 if __name__ == "__main__":

@@ -10,10 +10,11 @@ from .errors import KDInputError
 
 __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "SHAPE_MATCHING_ALPHA", "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
-    "CLUSTER_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "WIDTH_S",
-    "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
+    "CLUSTER_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
+    "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
     "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "default_step",
+    "user_cache_dir",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -41,6 +42,11 @@ WINDOW_S = "auto"
 STEP_S = None
 #: ε as a fraction of the object's diameter (§5.3 uses 0.1 %).
 EPSILON_FRACTION = 1e-3
+#: The most steps one KD window may take (a window is seconds long, not hours; a larger count is a unit mix-up or
+#: an absurd settle time or damping ratio, and would run for hours).
+MAX_WINDOW_STEPS = 10_000
+#: The longest an IKD solve may run [s] before it stops and reports what it reached.
+MAX_SOLVE_WALL_S = 3600.0
 
 # --- IKD (§3.1, §4) ------------------------------------------------------------------------------------------------
 #: Width σ [s] of a constraint's correction bell.
@@ -71,6 +77,15 @@ RAYLEIGH_BETA = 0.01
 #: The hat's simulation step [s] and KD window [s].
 HAT_STEP_S = 0.01
 HAT_WINDOW_S = 0.568
+
+
+def user_cache_dir():
+    """Where the command-line tools keep parsed rigs and tet meshes by content hash: ``$KDFACES_CACHE``, else
+    ``~/.cache/kdfaces`` (library calls cache only where they are told to)."""
+    import os
+    from pathlib import Path
+
+    return Path(os.environ.get("KDFACES_CACHE", Path.home() / ".cache" / "kdfaces"))
 
 
 def default_step(trajectory, step_s: float | None = None) -> float:

@@ -39,9 +39,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .defaults import default_step
+from .defaults import MAX_WINDOW_STEPS, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
+from .resources import format_bytes, memory_budget_bytes, progress_bar
 
 __all__ = ["KDSystem", "window_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
 
@@ -65,7 +66,12 @@ def window_steps(window_s: float, step_s: float) -> int:
         raise KDInputError(f"window_s: expected a positive number of seconds, got {window_s}")
     if isinstance(step_s, bool) or not (np.isfinite(step_s) and step_s > 0):
         raise KDInputError(f"step_s: expected a positive number of seconds, got {step_s}")
-    return max(1, math.ceil(window_s / step_s - 1e-9))
+    n = window_s / step_s
+    if n > MAX_WINDOW_STEPS:
+        raise KDInputError(f"window_s = {window_s:.6g} s needs {math.ceil(n - 1e-9):,} steps of {step_s:.6g} s; "
+                           f"expected at most {MAX_WINDOW_STEPS:,} (a KD window lasts seconds: check the window, "
+                           "the settle time and the damping ratio)")
+    return max(1, math.ceil(n - 1e-9))
 
 
 def _check_times(trajectory, times: np.ndarray) -> None:
@@ -91,24 +97,83 @@ def _times(times) -> np.ndarray:
     return t
 
 
+def _phase_groups(t0: np.ndarray, origin: float, h: float) -> list[np.ndarray]:
+    """Indices of window starts grouped by their phase on the step grid (starts of one group lie on one grid, so
+    a system can sample the trajectory once for all of them), each group in time order."""
+    rel = (t0 - origin) / h
+    phase = rel - np.floor(rel)
+    phase = np.where(phase > 1.0 - 1e-7, 0.0, phase)
+    key = np.round(phase * 1e6).astype(np.int64)
+    order = np.lexsort((t0, key))
+    splits = np.flatnonzero(np.diff(key[order])) + 1
+    return np.split(order, splits)
+
+
+def _batches(system, t0: np.ndarray, n: int, h: float, origin: float, budget: int) -> list[np.ndarray]:
+    """Window starts split into batches: by grid phase, then (in time order) so each batch's estimated memory
+    (``system.memory_bytes(members, grid_rows)``) stays within ``budget`` bytes."""
+    estimate = getattr(system, "memory_bytes", None)
+    groups = _phase_groups(t0, origin, h)
+    if estimate is None:
+        return groups
+    out = []
+    for g in groups:
+        if estimate(1, n + 1) > budget:
+            raise KDInputError(f"window: one KD state needs {format_bytes(estimate(1, n + 1))} ({n} steps), more "
+                               f"than the memory budget of {format_bytes(budget)}; shorten window_s, enlarge step_s or "
+                               "raise the budget (max_memory_bytes, --max-memory)")
+        lo = 0
+        while lo < len(g):
+            hi = lo + 1
+            while hi < len(g):  # grow the batch while members and the grid rows they read fit the budget
+                rows = int(round((t0[g[hi]] - t0[g[lo]]) / h)) + n + 1
+                if estimate(hi - lo + 1, rows) > budget:
+                    break
+                hi += 1
+            out.append(g[lo:hi])
+            lo = hi
+    return out
+
+
+def _run(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None) -> np.ndarray:
+    _prepare(system, trajectory, t0, n, h)
+    state = system.initial_state(trajectory, t0)
+    for k in range(n):
+        system.step(state, trajectory, t0 + k * h, h)
+        if progress is not None:
+            progress.update(len(t0))
+    return system.observe(state)
+
+
 @renamed_kwargs(window="window_s", h="step_s")
-def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s: float | None = None) -> np.ndarray:
+def simulate_kd(system: KDSystem, trajectory, times, window_s: float, *, step_s: float | None = None,
+                max_memory_bytes: int | None = None, progress: bool = False) -> np.ndarray:
     """KD states at ``times`` (T,) [s] with window δ = ``window_s`` [s] → ``system.observe`` of the batch, (T, P, 3).
 
     ``step_s`` [s] defaults to the trajectory's frame interval. A single time is the scrub path; many times are one
     batch. Times must lie inside the shot; windows may reach before its start (the trajectory holds its first pose
-    there).
+    there). Windows whose starts share a phase on the step grid are simulated together, and a system that
+    estimates its memory (``memory_bytes``) gets batches that fit ``max_memory_bytes`` (default half the available
+    memory): each KD state is its own simulation, so the result does not depend on how the batch is split.
+    ``progress`` shows a bar over the state-steps on stderr when the call runs longer than two seconds.
     """
     t = _times(times)
     _check_times(trajectory, t)
     h = default_step(trajectory, step_s)
     n = window_steps(window_s, h)
     t0 = t - n * h
-    _prepare(system, trajectory, t0, n, h)
-    state = system.initial_state(trajectory, t0)
-    for k in range(n):
-        system.step(state, trajectory, t0 + k * h, h)
-    return system.observe(state)
+    budget = memory_budget_bytes(max_memory_bytes)
+    batches = _batches(system, t0, n, h, float(getattr(trajectory, "start", 0.0)), budget)
+    with progress_bar("KD states", n * len(t), progress) as bar:
+        if len(batches) == 1 and np.array_equal(batches[0], np.arange(len(t))):
+            return _run(system, trajectory, t0, n, h, bar)
+        out = None
+        for idx in batches:
+            x = _run(system, trajectory, t0[idx], n, h, bar)
+            if out is None:
+                out = np.empty((len(t), *x.shape[1:]), dtype=x.dtype)
+            out[idx] = x
+        return out
 
 
 @renamed_kwargs(h="step_s", start="start_s")

@@ -4,13 +4,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 from kdfaces import defaults
-from kdfaces.cli import configure_output
-from kdfaces.errors import KDError
+from kdfaces.cli import execute
 
 __all__ = ["main", "build_parser"]
 
@@ -87,23 +84,9 @@ def _add_window_parser(subparsers):
 
 
 def main(argv=None) -> int:
+    """``kdfem …``: parse ``argv`` and run the command (see :func:`kdfaces.cli.execute`); returns the exit status."""
     args = build_parser().parse_args(argv)
-    configure_output(verbose=args.verbose)
-    try:
-        summary = args.func(args)
-    except KDError as e:
-        print(f"kdfem: error: {e}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        if args.command == "view":
-            if summary.get("screenshot"):
-                print(f"kdfem view: wrote {summary['screenshot']} ({summary['kd_state_ms']:.1f} ms per KD state)")
-        else:
-            name = "window.json" if args.command == "window" else "summary.json"
-            print(f"kdfem {args.command}: wrote {Path(args.out) / name}")
-    return 0
+    return execute("kdfem", args, renders=True)
 
 
 if __name__ == "__main__":

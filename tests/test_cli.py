@@ -1,6 +1,7 @@
 """The `kdfaces demo` command end to end: summary.json keys and a filmstrip that shows a face."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -54,3 +55,28 @@ def test_bad_rig_path_is_one_clear_error(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--rig", str(tmp_path / "missing.npz")]) == 2
     err = capsys.readouterr().err
     assert "missing.npz: file not found" in err and "Traceback" not in err
+
+
+def test_a_clean_run_prints_progress_and_no_library_noise(tmp_path):
+    """``kdfaces run`` in a fresh process: a progress bar, no Warp banner or VTK display warning, one summary line,
+    and files created 0644 under umask 022."""
+    import os
+    import stat
+    import subprocess
+    import sys
+
+    shot = Path(__file__).resolve().parent / "reference" / "shot.toml"
+    env = {**os.environ, "KDFACES_PROGRESS_DELAY_S": "0"}
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-c", "import os, sys; os.umask(0o022); from kdfaces.cli import main; "
+                           f"sys.exit(main(['run', {str(shot)!r}, '--out', {str(out)!r}, '--export', 'pc2']))"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    text = proc.stdout + proc.stderr
+    assert "KD states" in proc.stderr  # the progress bar
+    for noise in ("Warp", "CUDA", "bad X server", "Module kdfaces"):
+        assert noise not in text, (noise, text)
+    assert proc.stdout.strip().count("\n") == 0 and "peak memory" in proc.stdout
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in out.iterdir()}
+    assert modes and set(modes.values()) == {0o644}, modes
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755

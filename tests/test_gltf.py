@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from kdfaces import FaceAnimation, KDInputError, KeyframeCurve, ShapeTrack
+from kdfaces.errors import KDIOError
 from kdfaces.io.gltf import load_gltf, load_gltf_animation, load_gltf_rig, save_gltf
 
 pytest.importorskip("pygltflib")
@@ -52,10 +53,22 @@ def test_written_file_is_standard(tmp_path, default_rig):
     targets = [doc["accessors"][t["POSITION"]] for t in prim["targets"]]
     assert sum("sparse" in a for a in targets) > rig.num_shapes // 2  # local shapes are stored sparse
     assert all("byteOffset" not in a for a in targets if "bufferView" not in a)
+    assert "NORMAL" in prim["attributes"] and "TEXCOORD_0" in prim["attributes"]
     scene = trimesh.load(save_gltf(rig, tmp_path / "head.glb"), process=False)
     (geom,) = scene.geometry.values()
-    np.testing.assert_array_equal(geom.vertices, rig.neutral.astype(np.float32))
-    np.testing.assert_array_equal(geom.faces, rig.faces)
+    # vertices are split where the UVs have seams; extras map each back to the rig's vertex
+    src_acc = doc["accessors"][mesh["extras"]["kdfaces_source_vertices"]]
+    assert src_acc["count"] == len(geom.vertices) > rig.num_vertices
+    from kdfaces.io.gltf import _split_at_uv_seams
+
+    src, faces, uv = _split_at_uv_seams(rig)
+    np.testing.assert_array_equal(geom.vertices, rig.neutral[src].astype(np.float32))
+    np.testing.assert_array_equal(src[geom.faces], rig.faces)
+    blob = base64.b64decode(doc["buffers"][0]["uri"].split(",", 1)[1])
+    acc = doc["accessors"][prim["attributes"]["NORMAL"]]
+    view = doc["bufferViews"][acc["bufferView"]]
+    normals = np.frombuffer(blob, dtype="<f4", count=3 * acc["count"], offset=view["byteOffset"]).reshape(-1, 3)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)  # smooth unit vertex normals
 
 
 def test_weights_animation_round_trip(tmp_path, default_rig):
@@ -209,7 +222,7 @@ def _write_text(path, text):
 def test_unwritable_dir_and_failed_write_leave_nothing(tmp_path, monkeypatch, default_rig):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    with pytest.raises(KDInputError, match="cannot write here"):
+    with pytest.raises(KDIOError, match="cannot write here"):
         save_gltf(default_rig, blocker / "head.glb")
     with pytest.raises(KDInputError, match=r"expected a \.gltf or \.glb"):
         save_gltf(default_rig, tmp_path / "head.fbx")
@@ -220,7 +233,7 @@ def test_unwritable_dir_and_failed_write_leave_nothing(tmp_path, monkeypatch, de
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("pathlib.Path.write_bytes", disk_full)
-    with pytest.raises(KDInputError, match="No space left"):
+    with pytest.raises(KDIOError, match="No space left"):
         save_gltf(default_rig, tmp_path / "head.glb")
     monkeypatch.undo()
     assert [p.name for p in tmp_path.iterdir()] == ["file"]

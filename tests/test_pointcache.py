@@ -7,13 +7,16 @@ float64 input the error is at most half a float32 ulp, 2^-24 · max|x| (≈ 5e-8
 from __future__ import annotations
 
 import argparse
+import json
 import struct
 
 import numpy as np
 import pytest
 
 from kdfaces import FaceAnimation, KDInputError, KeyframeCurve, KinematicTrajectory, ShapeTrack
-from kdfaces.io.export import add_export_option, add_export_rig_parser, export_trajectory
+from kdfaces.cli import main as kdfaces_main
+from kdfaces.errors import KDIOError
+from kdfaces.io.export import add_export_option, export_trajectory
 from kdfaces.io.pointcache import read_pc2, read_usd, write_pc2, write_usd
 from kdfaces.io.rigfiles import load_obj_folder
 
@@ -78,28 +81,58 @@ def test_usda_text_and_inferred_fps(tmp_path, rig, shot):
     _assert_float32_exact(np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/head")).GetPointsAttr().Get(6.0)), x[1])
 
 
+def blender_meshcache_frame(path, scene_frame: float) -> np.ndarray:
+    """What Blender's Mesh Cache modifier shows at ``scene_frame`` for a PC2 file, with its defaults (time mode
+    "Frame", play mode "Scene", frame start 0, frame scale 1, interpolation linear).
+
+    Read off ``MOD_meshcache_pc2.cc``: in Frame mode the frame is the scene frame itself, the header's start and
+    sampling are not used; it is clamped to [0, samples − 1] (``MOD_meshcache_calc_range``) and the samples on
+    either side are blended linearly. Sample k is thus shown at scene frame k.
+    """
+    data = path.read_bytes()
+    _, _, points, _, _, samples = struct.unpack("<12siiffi", data[:32])
+    x = np.frombuffer(data, dtype="<f4", offset=32).reshape(samples, points, 3).astype(np.float64)
+    f = min(max(float(scene_frame), 0.0), samples - 1.0)
+    lo = int(np.floor(f))
+    hi = min(lo + 1, samples - 1)
+    return (1 - (f - lo)) * x[lo] + (f - lo) * x[hi]
+
+
 def test_pc2_round_trip_read_with_struct(tmp_path, shot):
     times, x = shot
     path = write_pc2(tmp_path / "shot.pc2", x, times, fps=FPS)
     data = path.read_bytes()
     sig, version, points, start, sampling, samples = struct.unpack("<12siiffi", data[:32])
-    assert (sig, version, points, samples) == (b"POINTCACHE2\0", 1, x.shape[1], len(x))
-    assert start == pytest.approx(5.0) and sampling == 1.0
-    assert len(data) == 32 + len(x) * x.shape[1] * 12
+    assert (sig, version, points, samples) == (b"POINTCACHE2\0", 1, x.shape[1], len(x) + 1)
+    assert start == 0.0 and sampling == 1.0  # one leading copy of the first frame: see the Blender test below
+    assert len(data) == 32 + (len(x) + 1) * x.shape[1] * 12
     frame_bytes = x.shape[1] * 12
     for f in range(len(x)):
-        vals = struct.unpack(f"<{3 * x.shape[1]}f", data[32 + f * frame_bytes: 32 + (f + 1) * frame_bytes])
+        k = f + 1
+        vals = struct.unpack(f"<{3 * x.shape[1]}f", data[32 + k * frame_bytes: 32 + (k + 1) * frame_bytes])
         _assert_float32_exact(np.asarray(vals).reshape(-1, 3), x[f])
     cache = read_pc2(path, fps=FPS, num_vertices=x.shape[1])
     _assert_float32_exact(cache.positions, x)
-    np.testing.assert_allclose(cache.times, times, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(cache.times, times - times[0], rtol=0, atol=1e-9)
 
 
-def test_pc2_sub_sampled_header(tmp_path, shot):
+def test_pc2_plays_the_first_frame_at_blender_scene_frame_one(tmp_path, shot):
+    """A new Blender scene starts at frame 1: the shot's frame f (here starting at t = 0.2 s) shows at frame f + 1,
+    and frame 0 (before the scene start) shows the first pose too."""
     times, x = shot
-    path = write_pc2(tmp_path / "every_other.pc2", x[::2], times[::2], fps=FPS)
+    path = write_pc2(tmp_path / "shot.pc2", x, times, fps=FPS)
+    for f in (0, 1, 7, len(x) - 1):
+        _assert_float32_exact(blender_meshcache_frame(path, f + 1), x[f])
+    _assert_float32_exact(blender_meshcache_frame(path, 0), x[0])
+    _assert_float32_exact(blender_meshcache_frame(path, len(x) + 5), x[-1])  # held after the end
+
+
+def test_pc2_sub_sampled_header_and_units(tmp_path, shot):
+    times, x = shot
+    path = write_pc2(tmp_path / "every_other.pc2", x[::2], times[::2], fps=FPS, unit_m=0.01)
     _, _, _, start, sampling, samples = struct.unpack("<12siiffi", path.read_bytes()[:32])
-    assert (start, sampling, samples) == (5.0, 2.0, len(x[::2]))
+    assert (start, sampling, samples) == (0.0, 2.0, len(x[::2]) + 1)
+    np.testing.assert_allclose(read_pc2(path, fps=FPS, unit_m=0.01).positions, x[::2], rtol=1e-6, atol=1e-9)
 
 
 def test_export_trajectory_dispatch(tmp_path, rig, shot):
@@ -147,7 +180,7 @@ def test_unwritable_output_dir_leaves_nothing(tmp_path, rig, shot):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     for write in (lambda p: write_usd(p / "a.usdc", x, times, rig.faces), lambda p: write_pc2(p / "a.pc2", x, times)):
-        with pytest.raises(KDInputError, match="cannot write here"):
+        with pytest.raises(KDIOError, match="cannot write here"):
             write(blocker / "sub")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
@@ -163,7 +196,7 @@ def test_failed_write_keeps_old_file_and_no_partial(tmp_path, monkeypatch, shot)
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("pathlib.Path.write_bytes", disk_full)
-    with pytest.raises(KDInputError, match="No space left"):
+    with pytest.raises(KDIOError, match="No space left"):
         write_pc2(path, x[:3], times[:3])
     monkeypatch.undo()
     assert path.read_bytes() == before
@@ -171,12 +204,9 @@ def test_failed_write_keeps_old_file_and_no_partial(tmp_path, monkeypatch, shot)
 
 
 def test_export_rig_verb(tmp_path, rig):
-    ap = argparse.ArgumentParser()
-    add_export_rig_parser(ap.add_subparsers(dest="command"))
-    args = ap.parse_args(["export-rig", "--out", str(tmp_path), "--format", "obj", "--format", "glb"])
-    summary = args.func(args)
+    assert kdfaces_main(["export-rig", "--out", str(tmp_path), "--format", "obj", "--format", "glb"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["outputs"] == ["obj", f"{rig.name}.glb"]
-    assert (tmp_path / "summary.json").is_file()
     back = load_obj_folder(tmp_path / "obj")
     order = [back.shape_names.index(n) for n in rig.shape_names]
     np.testing.assert_allclose(back.neutral, rig.neutral, rtol=0, atol=1e-9)  # OBJ text: 9 significant digits

@@ -71,7 +71,7 @@ def test_successive_sweeps_never_repeat_an_error(face, update):
 
 def test_a_pose_target_of_the_wrong_length_is_an_error(face):
     _, traj = face
-    with pytest.raises(KDInputError, match=r"target of shape \(10, 3\), expected \(4494, 3\)"):
+    with pytest.raises(KDInputError, match=r"target of shape \(10, 3\), expected \(4774, 3\)"):
         pose_constraint(1.0, np.zeros((10, 3)), GaussianBasis(1.0, 0.3), num_vertices=traj.num_vertices)
 
 

@@ -80,11 +80,12 @@ def test_good_shot(tmp_path):
         (("time_s = 1.8", "time_s = 2.5"), r"constraints\[3\].time_s: 2.5 s is outside the shot \[0.0, 2.0\] s"),
         (("width_s = 0.3", "width_s = -0.3"), r"constraints\[0\].width_s: expected a positive number"),
         (('group = "lips"', 'group = "lipz"'), "unknown group 'lipz'"),
-        (("window_s = 0.8", "window_s = -1"), "window_s: expected \"auto\" or positive seconds"),
-        (("[dynamics]", "[dynamics]\nstifness = 3"), r"dynamics: unknown key\(s\) \['stifness'\]"),
-        (('kind = "pose"', 'kind = "pos"'), "kind: 'pos' unknown"),
+        (("window_s = 0.8", "window_s = -1"), r"dynamics.window_s: expected 'auto' or a positive number \(got -1\)"),
+        (("[dynamics]", "[dynamics]\nstifness = 3"), r"dynamics.stifness: unknown key"),
+        (('kind = "pose"', 'kind = "pos"'), r"constraints\[0\].kind: expected 'pose', 'subset', 'velocity' or "
+                                            r"'end_effector' \(got 'pos'\)"),
         (("target = { weights = { jawOpen = 0.5 }", "target = { weights = { jawOpen = nan }"),
-         r"constraints\[0\].target.weights: expected finite"),
+         r"constraints\[0\].target.weights.jawOpen: expected a finite number"),
     ],
 )
 def test_bad_shot_files(tmp_path, edit, match):
@@ -103,7 +104,7 @@ kind = "subset"
 group = "jaw"
 width_s = 0.3
 """
-    with pytest.raises(KDInputError, match=r"\(pose at 1 s\) and .*\(subset at 1 s\) have conflicting targets"):
+    with pytest.raises(KDInputError, match=r"\(pose at 1 s #0\) and .*\(subset at 1 s #4\) have conflicting targets"):
         load_shot(write(tmp_path, text))
 
 

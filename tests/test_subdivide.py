@@ -33,7 +33,7 @@ def test_refinement_is_conforming_and_keeps_orientation():
 def test_subdivided_rig_blends_like_the_refined_blend(default_rig):
     rig = default_rig
     fine = subdivide_rig(rig, 1)
-    assert fine.num_vertices == 17931 and len(fine.faces) == 4 * len(rig.faces)
+    assert fine.num_vertices == 18957 and len(fine.faces) == 4 * len(rig.faces)
     assert _edge_use(fine.faces).max() <= 2
     w = np.zeros(rig.num_shapes)
     w[rig.shape_indices(["jawOpen", "mouthSmileLeft"])] = [0.7, 1.0]

@@ -175,6 +175,7 @@ def track_step(
     cen0: wp.array2d(dtype=wp.vec3),
     kp: wp.array(dtype=float),
     kd: wp.array(dtype=float),
+    rigid: wp.array(dtype=wp.int32),
     alpha: float,
     h: float,
     relative: int,
@@ -185,10 +186,15 @@ def track_step(
     (one step of h [s]). Launched over (batch member, vertex): the parallel path (GPU).
 
     Goals: g_i = mean over clusters c ∋ i of R_c (x0_i − c0_c) + c_c; v* = v + α (g_i − x_i)/h (Müller eq. 10).
+    Vertices with ``rigid`` set take x_K, ẋ_K at t + h instead.
     """
     b, i = wp.tid()
     r0 = rows[b] + off0
     r1 = rows[b] + off1
+    if rigid[i] != 0:  # a rigid part (teeth, eyes) follows the kinematic trajectory exactly
+        x[b, i] = xk[r1, i]
+        v[b, i] = vk[r1, i]
+        return
     xi = x[b, i]
     vi = v[b, i]
     start = vertex_offsets[i]
@@ -231,6 +237,7 @@ def face_step(
     slot_clusters: wp.array(dtype=wp.int32),
     kp: wp.array(dtype=float),
     kd: wp.array(dtype=float),
+    rigid: wp.array(dtype=wp.int32),
     alpha: float,
     h: float,
     relative: int,
@@ -249,7 +256,7 @@ def face_step(
     seam are fitted by both, identically), and x is double-buffered so that neither reads a position the other
     has already advanced. Slot s of part p's vertices is vertex ``part_vertices[s]``; its clusters are the
     slots ``slot_clusters[slot_offsets[s]:slot_offsets[s + 1]]`` of the per-member ``q``, ``rot``, ``cen``,
-    ``cen0``.
+    ``cen0``. Vertices with ``rigid`` set take x_K, ẋ_K at t + h.
     """
     b = wp.tid()
     r0 = rows[b] + off0
@@ -268,6 +275,10 @@ def face_step(
     ah = alpha / h
     for s in range(part_vertex_offsets[part], part_vertex_offsets[part + 1]):
         i = part_vertices[s]
+        if rigid[i] != 0:  # a rigid part (teeth, eyes) follows the kinematic trajectory exactly
+            x_out[b, i] = xk[r1, i]
+            v[b, i] = vk[r1, i]
+            continue
         xi = x_in[b, i]
         vi = v[b, i]
         start = slot_offsets[s]

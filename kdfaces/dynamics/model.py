@@ -35,6 +35,23 @@ def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.bincount(f.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
 
 
+def _mask(value, n: int) -> np.ndarray | None:
+    """A (n,) bool mask from a mask or vertex indices (None: none)."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise KDInputError(f"rigid: expected a ({n},) mask, got shape {a.shape}")
+        return a.copy()
+    idx = a.astype(np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise KDInputError(f"rigid: vertex indices must lie in [0, {n})")
+    out = np.zeros(n, dtype=bool)
+    out[idx] = True
+    return out
+
+
 def _per_vertex(value, n: int, what: str) -> np.ndarray:
     a = np.asarray(value, dtype=np.float64)
     if a.ndim == 0:
@@ -63,6 +80,7 @@ class FaceModel:
             warm-started from the previous step; the default, several times faster) or "svd3" (polar part of A_pq
             from Warp's svd3, float64). Both fit A_pq + η·I, so they agree to float32 round-off once converged.
         rotation_iterations: Newton iterations per step for "iterative".
+        rigid: vertices that follow x_K exactly (rigid parts: teeth, eyes), shape (N,), bool, or None (none).
     """
 
     mass: np.ndarray
@@ -76,6 +94,7 @@ class FaceModel:
     diameter: float
     rotation: str = defaults.ROTATION
     rotation_iterations: int = defaults.ROTATION_ITERATIONS
+    rigid: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.mass)
@@ -92,6 +111,13 @@ class FaceModel:
             raise KDInputError(f"rotation: expected one of {ROTATION_METHODS}, got {self.rotation!r}")
         if self.rotation_iterations < 1:
             raise KDInputError(f"rotation_iterations: expected an integer >= 1, got {self.rotation_iterations}")
+        if self.rigid is not None and np.shape(self.rigid) != (n,):
+            raise KDInputError(f"rigid: expected a (N,) = ({n},) mask, got shape {np.shape(self.rigid)}")
+
+    @property
+    def rigid_mask(self) -> np.ndarray:
+        """(N,) bool: the vertices that follow x_K exactly."""
+        return np.zeros(self.num_vertices, dtype=bool) if self.rigid is None else np.asarray(self.rigid, dtype=bool)
 
     @property
     def num_vertices(self) -> int:
@@ -124,7 +150,7 @@ class FaceModel:
                shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA, rings: int = defaults.CLUSTER_RINGS,
                cluster_centers="cover", areal_density_kg_m2: float = defaults.AREAL_DENSITY_KG_M2, mass=None,
                damping_mode: str = defaults.DAMPING_MODE, rotation: str = defaults.ROTATION,
-               rotation_iterations: int = defaults.ROTATION_ITERATIONS) -> FaceModel:
+               rotation_iterations: int = defaults.ROTATION_ITERATIONS, rigid=None) -> FaceModel:
         """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3) int.
 
         Args:
@@ -139,6 +165,7 @@ class FaceModel:
             damping_mode: "relative" (damps ẋ − ẋ_K) or "absolute" (the paper's −K_d·ẋ).
             rotation, rotation_iterations: cluster rotation fit, "iterative" (with its Newton iterations per step)
                 or "svd3".
+            rigid: vertices that follow x_K exactly: a (N,) bool mask or vertex indices (teeth, eyes).
         """
         settle_time, alpha, damping = settle_time_s, shape_matching_alpha, damping_mode
         areal_density = areal_density_kg_m2
@@ -164,7 +191,7 @@ class FaceModel:
         diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
         return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
                    shape_matching_alpha=float(alpha), damping_mode=damping, diameter=diameter, rotation=rotation,
-                   rotation_iterations=int(rotation_iterations))
+                   rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n))
 
     @classmethod
     def from_rig(cls, rig, **kwargs) -> FaceModel:

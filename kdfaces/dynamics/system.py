@@ -34,6 +34,7 @@ __all__ = ["FaceSystem", "FaceState", "TrajectoryBake", "KERNEL_PATHS"]
 KERNEL_PATHS = ("fused", "parallel")
 
 _GRID_TOL = 1e-9
+_OFF0, _OFF1 = object(), object()  # placeholders for the step's row offsets in launch specs
 #: η added to the normalised A_pq before svd3 (see :func:`~kdfaces.dynamics.kernels.polar_svd`).
 ROTATION_REGULARIZATION = 1e-4
 
@@ -42,13 +43,16 @@ class TrajectoryBake:
     """x_K, ẋ_K of a trajectory sampled on a step grid, as float32 Warp arrays ``xk``, ``vk`` of shape (R, N) vec3.
 
     Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` None): row r is the time
-    ``trajectory.start + (j_lo + r)·h``, read by every window that starts on that grid (frame times with h = 1/fps),
-    stride 1, and kept across simulate calls (a sweep over windows bakes once). Otherwise each member has its own
-    rows, interleaved time-major (stride B). Rows are appended on demand by :meth:`ensure`.
+    ``origin + (j_lo + r)·h``, read by every window that starts on that grid (``origin`` defaults to the shot start;
+    frame times with h = 1/fps lie on it), stride 1, and kept across simulate calls (a sweep over windows bakes
+    once). Otherwise each member has its own rows, interleaved time-major (stride B). Rows are appended on demand by
+    :meth:`ensure`.
     """
 
-    def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None):
+    def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None,
+                 origin: float | None = None):
         self.trajectory, self.h, self.device = trajectory, float(h), device
+        self.origin = float(getattr(trajectory, "start", 0.0)) if origin is None else float(origin)
         self.version = getattr(trajectory, "version", None)
         self.member_times = member_times
         self.j_lo = int(j_lo)
@@ -73,23 +77,39 @@ class TrajectoryBake:
         return self._v[: self.num_rows]
 
     @staticmethod
-    def grid_index(trajectory, start_times: np.ndarray, h: float) -> np.ndarray | None:
-        """Grid indices j with start_times = trajectory.start + j·h, or None when some time is off that grid."""
-        origin = float(getattr(trajectory, "start", 0.0))
+    def grid_origin(trajectory, start_times: np.ndarray, h: float) -> float:
+        """The grid the first window start lies on: the shot start shifted by that start's phase (a fraction of h),
+        so frames of a shot whose frame interval is not a multiple of h still share one grid per phase."""
+        start = float(getattr(trajectory, "start", 0.0))
+        rel = (float(start_times[0]) - start) / h
+        phase = rel - np.floor(rel)
+        return start if min(phase, 1.0 - phase) < 1e-9 * max(1.0, abs(rel)) else start + phase * h
+
+    @staticmethod
+    def grid_index(trajectory, start_times: np.ndarray, h: float, origin: float | None = None) -> np.ndarray | None:
+        """Grid indices j with start_times = origin + j·h (default origin the shot start), or None when some time is
+        off that grid."""
+        origin = float(getattr(trajectory, "start", 0.0)) if origin is None else float(origin)
         j = np.round((start_times - origin) / h)
         scale = max(1.0, float(np.abs(start_times).max()))
         return j.astype(np.int64) if np.allclose(origin + j * h, start_times, rtol=0, atol=_GRID_TOL * scale) \
             else None
 
     def times(self, r: np.ndarray) -> np.ndarray:
+        """The time [s] of bake rows ``r``."""
         if self.member_times is None:
-            return float(getattr(self.trajectory, "start", 0.0)) + (self.j_lo + r) * self.h
+            return self.origin + (self.j_lo + r) * self.h
         return self.member_times[r % self.stride] + (r // self.stride) * self.h
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held: device arrays and host copies [bytes]."""
+        return 2 * (self._x.nbytes + self._v.nbytes)
 
     def prepended(self, j_lo: int) -> TrajectoryBake:
         """A new shared-grid bake starting at grid index ``j_lo`` < ``self.j_lo``, reusing this one's rows (states
         that read this bake keep it)."""
-        new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo)
+        new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo, origin=self.origin)
         new.ensure(np.zeros(1, np.int32), self.j_lo - j_lo - 1)
         new._append(self.xk_np, self.vk_np)
         return new
@@ -256,17 +276,20 @@ class FaceSystem:
             is split by vertices, a batch by members.
         check_every: steps between blow-up checks (NaN/inf, or a vertex farther than ``blowup_factor`` face
             diameters, or extents of the baked trajectory, beyond its reach); the final state is always checked.
+        max_bake_bytes: the shared trajectory bake kept across calls stays within this many bytes; a call whose
+            windows would grow it further starts a new bake at its own windows (bounded memory on long takes).
         kernels: "fused" or "parallel" (:data:`KERNEL_PATHS`); default fused on the CPU, parallel on a GPU. Both
             compute the same step (the tests hold them to float32 round-off of each other).
     """
 
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
-                 blowup_factor: float = 10.0, kernels: str | None = None):
+                 blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
         self.model = model
         self.device = wp.get_device(device)
         self.threads = max(1, int(threads))
         self.check_every = max(1, int(check_every))
         self.blowup_factor = float(blowup_factor)
+        self.max_bake_bytes = int(max_bake_bytes)
         if kernels is None:
             kernels = "fused" if self.device.is_cpu else "parallel"
         if kernels not in KERNEL_PATHS:
@@ -281,6 +304,7 @@ class FaceSystem:
         self._mass = wp.array(model.mass.astype(np.float32), dtype=float, device=d)
         self._kp = wp.array(model.kp.astype(np.float32), dtype=float, device=d)
         self._kd = wp.array(model.kd.astype(np.float32), dtype=float, device=d)
+        self._rigid = wp.array(model.rigid_mask.astype(np.int32), dtype=wp.int32, device=d)
         self._voff_none = wp.zeros(model.num_vertices + 1, dtype=wp.int32, device=d)  # no goals when α = 0
         self._partitions: dict[int, _Partition] = {}
         self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
@@ -306,22 +330,49 @@ class FaceSystem:
         """
         self._check_trajectory(trajectory)
         t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
-        self._pending = (trajectory, t0, self._bake_for(trajectory, t0, float(step_s)))
+        self._pending = (trajectory, t0, self._bake_for(trajectory, t0, float(step_s), steps))
         bake, rows = self._pending[2]
         bake.ensure(rows, steps)
 
-    def _bake_for(self, trajectory, t0: np.ndarray, h: float):
-        j = TrajectoryBake.grid_index(trajectory, t0, h)
+    def _bake_for(self, trajectory, t0: np.ndarray, h: float, steps: int = 0):
+        """(bake, rows): the shared bake when every start lies on one grid (reused, extended or restarted), else a
+        bake of the members' own rows."""
+        origin = TrajectoryBake.grid_origin(trajectory, t0, h)
+        j = TrajectoryBake.grid_index(trajectory, t0, h, origin)
         if j is None:
             bake = TrajectoryBake(trajectory, h, self.device, member_times=t0)
             return bake, np.arange(len(t0), dtype=np.int32)
         old = self._bake
         version = getattr(trajectory, "version", None)  # content, not identity: an edited correction is new content
-        if old is None or version is None or old.version != version or old.h != h:
-            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=int(j.min()))
-        elif j.min() < old.j_lo:
-            self._bake = old = old.prepended(int(j.min()))
+        lo, hi = int(j.min()), int(j.max()) + steps + 1
+        row_bytes = 4 * 3 * 4 * self.model.num_vertices  # x_K, ẋ_K; device and host
+        if (old is None or version is None or old.version != version or old.h != h
+                or abs(old.origin - origin) > _GRID_TOL * max(1.0, abs(origin))
+                or (max(hi, old.j_lo + old.num_rows) - min(lo, old.j_lo)) * row_bytes > self.max_bake_bytes):
+            # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed)
+            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin)
+        elif lo < old.j_lo:
+            self._bake = old = old.prepended(lo)
         return old, (j - old.j_lo).astype(np.int32)
+
+    def memory_bytes(self, num_members: int, grid_rows: int) -> int:
+        """Estimated memory [bytes] of a batch of ``num_members`` states reading ``grid_rows`` baked rows: per member
+        positions and velocities (N vec3) and per-cluster rotations, quaternions and centroids; per row x_K and ẋ_K
+        on the device and on the host."""
+        n, c = self.model.num_vertices, self.model.clusters.num_clusters
+        member = 2 * 12 * n + (36 + 16 + 12 + 12) * c + 8 * 3 * n  # + the float64 copy observe() returns
+        return int(num_members) * member + int(grid_rows) * 4 * 12 * n
+
+    def copy_state(self, state: FaceState) -> FaceState:
+        """An independent copy of ``state`` (same bake, its own arrays)."""
+        chunks = [_Chunk(members=ch.members, rows=ch.rows, x=wp.clone(ch.x),
+                         x_next=None if ch.x_next is None else wp.empty_like(ch.x_next), v=wp.clone(ch.v),
+                         rot=wp.clone(ch.rot), quat=wp.clone(ch.quat), cen=wp.clone(ch.cen), cen0=wp.clone(ch.cen0),
+                         partition=ch.partition)
+                  for ch in state.chunks]
+        return FaceState(start_times=state.start_times.copy(), bake=state.bake,
+                         rows=None if state.rows is None else state.rows.copy(), chunks=chunks, steps=state.steps,
+                         tasks=list(state.tasks))
 
     def initial_state(self, trajectory, times) -> FaceState:
         """States at ``times`` (B,) [s] on the kinematic trajectory: x = x_K(t), v = ẋ_K(t)."""
@@ -369,9 +420,10 @@ class FaceSystem:
             for ch in state.chunks:
                 ch.rows = wp.array(state.rows[ch.members], dtype=wp.int32, device=self.device)
         bake = state.bake
-        if abs(h - bake.h) > _GRID_TOL * bake.h:
-            raise KDInputError(f"step h: {h} s differs from the {bake.h} s this state was prepared with")
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if abs(h - bake.h) > _GRID_TOL * bake.h:
+            self._one_off_step(state, trajectory, t, h)
+            return
         expect = state.start_times[0] + state.steps * bake.h
         if abs(t[0] - expect) > 1e-6 * max(1.0, abs(expect)):
             raise KDInputError(f"times: step expected to start at {expect:.9g} s, got {t[0]:.9g} s")
@@ -382,6 +434,13 @@ class FaceSystem:
             tasks = [self._fused_launch(state.chunks[k], part, parity, bake, off0, off1) for k, part in state.tasks]
         else:
             tasks = [self._parallel_launches(state.chunks[k], bake, off0, off1) for k, _ in state.tasks]
+        self._run(state, tasks)
+        state.steps += 1
+        if state.steps % self.check_every == 0:
+            self._check(state)
+
+    def _run(self, state: FaceState, tasks) -> None:
+        """Run one step's tasks (on the workers when there are several), then swap the fused path's buffers."""
         if len(tasks) == 1 or self._workers is None:  # (a state made before close() steps on one thread)
             for task in tasks:
                 task()
@@ -390,18 +449,51 @@ class FaceSystem:
         if self.kernels == "fused":
             for ch in state.chunks:
                 ch.x, ch.x_next = ch.x_next, ch.x
-        state.steps += 1
-        if state.steps % self.check_every == 0:
-            self._check(state)
+
+    def _one_off_step(self, state: FaceState, trajectory, t: np.ndarray, h: float) -> None:
+        """A step of another length than the state's grid (a final partial step of :func:`~kdfaces.kd.simulate_full`
+        to a time between grid points): the same kernels on a two-row bake of x_K at t and t + h. The state leaves
+        its grid, so it takes no further regular steps."""
+        if not (0.0 < h):
+            raise KDInputError(f"step_s: expected a positive number of seconds, got {h}")
+        bake = TrajectoryBake(trajectory, h, self.device, member_times=np.broadcast_to(t, (len(state.start_times),)))
+        bake.ensure(np.arange(bake.stride, dtype=np.int32), 1)
+        tasks = []
+        for k, part in state.tasks:
+            ch = state.chunks[k]
+            rows = wp.array(np.arange(ch.members.start, ch.members.stop, dtype=np.int32), dtype=wp.int32,
+                            device=self.device)
+            if self.kernels == "fused":
+                inputs = self._fused_inputs(ch, part, bake, rows)
+                inputs[7] = bake.stride  # off1: the members' rows at t + h
+
+                def task(inputs=inputs, b=ch.x.shape[0]):
+                    wp.launch(face_step, dim=b, inputs=inputs, device=self.device)
+            else:
+                def task(ch=ch, rows=rows):
+                    for kernel, dim, inputs, outputs in self._launch_specs(ch, bake, rows=rows):
+                        inputs = [0 if a is _OFF0 else bake.stride if a is _OFF1 else a for a in inputs]
+                        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            tasks.append(task)
+        self._run(state, tasks)
+        state.bake, state.rows, state.start_times, state.steps = bake, None, t + h, 0  # off the grid from here
+        self._check(state)
 
     def observe_kinematic(self, trajectory, times) -> np.ndarray:
         """Vertex positions of the kinematic trajectory at ``times`` (T,) [s] → (T, N, 3) [m], float64."""
         return np.asarray(trajectory.evaluate(np.atleast_1d(np.asarray(times, dtype=np.float64)), order=0)[0])
 
     def observe(self, state: FaceState) -> np.ndarray:
-        """Vertex positions of every member [m], shape (B, N, 3), float64."""
+        """Vertex positions of every member [m], shape (B, N, 3), float64. Rigid vertices are the trajectory's own
+        float64 positions at each member's time (they follow it exactly; the state holds them in float32)."""
         self._check(state)
-        return np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
+        x = np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
+        rigid = self.model.rigid_mask
+        if rigid.any() and state.bake is not None:
+            t = state.start_times + state.steps * state.bake.h
+            for i in range(0, len(t), 32):
+                x[i:i + 32, rigid] = state.bake.trajectory.evaluate(t[i:i + 32], order=0)[0][:, rigid]
+        return x
 
     # --- internals ---------------------------------------------------------------------------------------------
     def _check_trajectory(self, trajectory) -> None:
@@ -455,42 +547,56 @@ class FaceSystem:
         key = (bake.xk, bake.vk, ch.rows)  # the arrays themselves (ids could be reused after a bake grows)
         rec = ch.launches.get((part, parity))
         if rec is None or any(a is not b for a, b in zip(rec[0], key, strict=True)):
-            m, pa = self.model, ch.partition
-            alpha_on = m.shape_matching_alpha > 0 and m.clusters.num_clusters > 0
-            x_in, x_out = (ch.x, ch.x_next)
-            inputs = [x_in, x_out, ch.v, bake.xk, bake.vk, ch.rows, 0, 0, part,
-                      pa.cluster_offsets if alpha_on else pa.no_cluster_offsets, pa.clusters, self._offsets,
-                      self._members, self._mass,
-                      int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations,
-                      pa.vertex_offsets, pa.vertices, pa.slot_offsets if alpha_on else self._voff_none,
-                      pa.slot_clusters, self._kp, self._kd, float(m.shape_matching_alpha), float(bake.h),
-                      int(m.damping_mode == "relative"), ch.quat, ch.rot, ch.cen, ch.cen0]
-            cmd = wp.launch(face_step, dim=ch.x.shape[0], inputs=inputs, device=self.device, record_cmd=True)
+            cmd = wp.launch(face_step, dim=ch.x.shape[0], inputs=self._fused_inputs(ch, part, bake, ch.rows),
+                            device=self.device, record_cmd=True)
             rec = ch.launches[(part, parity)] = (key, cmd)
         cmd = rec[1]
         cmd.set_param_at_index_from_ctype(_FUSED_OFF0, off0)
         cmd.set_param_at_index_from_ctype(_FUSED_OFF0 + 1, off1)
         return cmd.launch
 
+    def _fused_inputs(self, ch: _Chunk, part: int, bake: TrajectoryBake, rows) -> list:
+        """face_step's arguments for ``part`` of chunk ``ch`` reading ``bake`` at ``rows`` (row offsets 0)."""
+        m, pa = self.model, ch.partition
+        alpha_on = m.shape_matching_alpha > 0 and m.clusters.num_clusters > 0
+        return [ch.x, ch.x_next, ch.v, bake.xk, bake.vk, rows, 0, 0, part,
+                pa.cluster_offsets if alpha_on else pa.no_cluster_offsets, pa.clusters, self._offsets,
+                self._members, self._mass, int(m.rotation == "iterative"), ROTATION_REGULARIZATION,
+                m.rotation_iterations, pa.vertex_offsets, pa.vertices,
+                pa.slot_offsets if alpha_on else self._voff_none, pa.slot_clusters, self._kp, self._kd, self._rigid,
+                float(m.shape_matching_alpha), float(bake.h), int(m.damping_mode == "relative"), ch.quat, ch.rot,
+                ch.cen, ch.cen0]
+
     def _parallel_launches(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int):
-        """The step of chunk ``ch`` on the parallel path, as a callable of two launches."""
-        m, d = self.model, self.device
-        b = ch.x.shape[0]
+        """The step of chunk ``ch`` on the parallel path, as a callable of its launches."""
 
         def run():
-            voff = self._voff_none
-            if m.shape_matching_alpha > 0 and m.clusters.num_clusters:
-                wp.launch(cluster_frames, dim=(b, m.clusters.num_clusters),
-                          inputs=[ch.x, bake.xk, ch.rows, off0, self._offsets, self._members, self._mass,
-                                  int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations,
-                                  ch.quat], outputs=[ch.rot, ch.cen, ch.cen0], device=d)
-                voff = self._voff
-            wp.launch(track_step, dim=(b, m.num_vertices),
-                      inputs=[bake.xk, bake.vk, ch.rows, off0, off1, voff, self._vcl, ch.rot, ch.cen, ch.cen0,
-                              self._kp, self._kd, float(m.shape_matching_alpha), float(bake.h),
-                              int(m.damping_mode == "relative")], outputs=[ch.x, ch.v], device=d)
+            for kernel, dim, inputs, outputs in self._launch_specs(ch, bake):
+                inputs = [off0 if a is _OFF0 else off1 if a is _OFF1 else a for a in inputs]
+                wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
 
         return run
+
+    def _launch_specs(self, ch: _Chunk, bake: TrajectoryBake, rows=None) -> list:
+        """(kernel, dim, inputs, outputs) of one step; the row offsets are the placeholders _OFF0 and _OFF1."""
+        m = self.model
+        b = ch.x.shape[0]
+        rows = ch.rows if rows is None else rows
+        specs = []
+        if m.shape_matching_alpha > 0 and m.clusters.num_clusters:
+            specs.append((cluster_frames, (b, m.clusters.num_clusters),
+                          [ch.x, bake.xk, rows, _OFF0, self._offsets, self._members, self._mass,
+                           int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations, ch.quat],
+                          [ch.rot, ch.cen, ch.cen0]))
+            voff = self._voff
+        else:
+            voff = self._voff_none
+        specs.append((track_step, (b, m.num_vertices),
+                      [bake.xk, bake.vk, rows, _OFF0, _OFF1, voff, self._vcl, ch.rot, ch.cen, ch.cen0, self._kp,
+                       self._kd, self._rigid, float(m.shape_matching_alpha), float(bake.h),
+                       int(m.damping_mode == "relative")],
+                      [ch.x, ch.v]))
+        return specs
 
     def _check(self, state: FaceState) -> None:
         """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""

@@ -57,7 +57,7 @@ class IKDResult:
         correction: f(t), evaluable at any time (:meth:`Correction.evaluate`).
         trajectory: x_K + f, ready for ``simulate_kd`` or rendering.
         converged: every constraint within tolerance.
-        reason: "converged", "max_iterations", "diverged", "out_of_reach" or "stalled".
+        reason: "converged", "max_iterations", "diverged", "out_of_reach", "stalled" or "time_limit".
         iterations: sweeps done.
         history: (iterations + 1, C) error of each constraint before the first sweep and after each sweep [m, m/s].
         states: final KD state at each constraint time, list of (N, 3) arrays.
@@ -235,7 +235,8 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window_s: fl
               update: str = defaults.SOLVER_UPDATE, step_scale: float = defaults.STEP_SCALE,
               tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
               max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
-              snap_to_frames: bool = False, callback=None) -> IKDResult:
+              snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S,
+              callback=None) -> IKDResult:
     """Solve for a correction f so that KD states of x_K + f meet ``constraints`` (Algorithm 1 or secant).
 
     Args:
@@ -250,14 +251,20 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window_s: fl
             residual of the clamped correction.
         snap_to_frames: move constraints that fall between frames onto the nearest frame (else they warn with
             :class:`OffGridConstraintWarning`).
+        max_wall_s: stop after this long [s] (reason "time_limit"), whatever the iterations left.
         callback: optional ``callback(iteration, errors)`` after each sweep.
     """
     if update not in UPDATES:
         raise KDInputError(f"solver update {update!r} unknown; expected one of {UPDATES}")
     if not (0.0 < step_scale <= 1.0):
         raise KDInputError(f"solver step_scale: expected 0 < s ≤ 1, got {step_scale}")
-    if max_iterations < 1:
-        raise KDInputError(f"solver max_iterations: expected ≥ 1, got {max_iterations}")
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int | np.integer) or max_iterations < 1:
+        raise KDInputError(f"solver max_iterations: expected an integer ≥ 1, got {max_iterations!r}")
+    for name, value in (("tolerance_m", tolerance_m), ("tolerance_mps", tolerance_mps),
+                        ("max_correction_m", max_correction_m), ("max_wall_s", max_wall_s)):
+        if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or not (
+                np.isfinite(value) and value > 0):
+            raise KDInputError(f"solver {name}: expected a positive number, got {value!r}")
     if not constraints:
         raise KDInputError("solver: no constraints")
     h = default_step(trajectory, step_s)
@@ -335,6 +342,9 @@ def solve_ikd(system, trajectory, constraints: list[Constraint], *, window_s: fl
             break
         if update == "paper" and it >= 2 and np.allclose(err, prev, rtol=1e-12, atol=0) and not (err <= tol).all():
             reason = "stalled"
+            break
+        if _time.perf_counter() - t0 > max_wall_s and not (err <= tol).all():
+            reason = "time_limit"
             break
     else:
         reason = "converged" if (err <= tol).all() else "max_iterations"

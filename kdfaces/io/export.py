@@ -1,35 +1,35 @@
-"""Export entry points: point caches of trajectories by kind, and the ``export-rig`` command verb.
+"""Export entry points: point caches of trajectories by kind, and rigs for other tools.
 
 ``export_trajectory`` is what ``kdfaces demo/run/render --export usd|pc2`` call for the final trajectory;
-``add_export_option`` adds that repeatable option to a parser; ``add_export_rig_parser`` adds the
-``kdfaces export-rig`` verb (rig → OBJ folder and glTF).
+``add_export_option`` adds that repeatable option to a parser; ``export_rig`` writes a rig as an OBJ folder and
+glTF (the ``kdfaces export-rig`` verb).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import KDInputError
 from .pointcache import write_pc2, write_usd
 
-__all__ = ["EXPORT_KINDS", "export_trajectory", "add_export_option", "add_export_rig_parser", "export_rig"]
+__all__ = ["EXPORT_KINDS", "export_trajectory", "add_export_option", "export_rig"]
 
 EXPORT_KINDS = {"usd": ".usdc", "usda": ".usda", "pc2": ".pc2"}
 RIG_FORMATS = ("obj", "gltf", "glb")
 
 
 def export_trajectory(path, positions, times, *, kind: str | None = None, faces=None, fps: float | None = None,
-                      name: str = "face") -> Path:
+                      name: str = "face", rig=None, unit_m: float = 1.0) -> Path:
     """Write a point cache of ``positions`` [m], shape (F, N, 3), at ``times`` [s], shape (F,).
 
     Args:
         path: a file, or a folder (existing, or without a suffix) that receives ``<name>.usdc`` / ``<name>.pc2``.
         kind: ``"usd"`` (binary crate), ``"usda"`` (text) or ``"pc2"``; inferred from the file suffix if None.
-        faces: triangles (M, 3), required for USD (PC2 stores none).
+        faces: triangles (M, 3), for USD when no ``rig`` is given (PC2 stores none).
         fps: frame rate [1/s]; inferred from ``times`` if None.
         name: file stem inside a folder, and the USD prim name.
+        rig: the rig the positions belong to: USD then keeps its polygons (quads stay quads) and UVs.
+        unit_m: metres per written unit: 1 writes metres, ``rig.source_unit_m`` the rig's own unit (0.01: cm).
 
     Returns:
         The path written.
@@ -46,18 +46,26 @@ def export_trajectory(path, positions, times, *, kind: str | None = None, faces=
     if p.is_dir() or not p.suffix:
         p = p / f"{name}{EXPORT_KINDS[kind]}"
     if kind == "pc2":
-        return write_pc2(p, positions, times, fps=fps)
-    return write_usd(p, positions, times, faces, fps=fps, prim_name=name)
+        return write_pc2(p, positions, times, fps=fps, unit_m=unit_m)
+    if rig is not None:
+        return write_usd(p, positions, times, rig.faces, fps=fps, prim_name=name, unit_m=unit_m,
+                         polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
+    return write_usd(p, positions, times, faces, fps=fps, prim_name=name, unit_m=unit_m)
 
 
 def add_export_option(parser) -> None:
-    """Add the repeatable ``--export {usd,usda,pc2}`` option (``args.export``: list of kinds, default empty)."""
+    """Add the repeatable ``--export {usd,usda,pc2}`` option (``args.export``: list of kinds, default empty) and
+    ``--export-unit {m,rig}`` (``args.export_unit``)."""
     parser.add_argument("--export", action="append", default=[], choices=sorted(EXPORT_KINDS),
                         help="also write a point cache of the final trajectory (repeatable)")
+    parser.add_argument("--export-unit", default="m", choices=("m", "rig"),
+                        help="point caches in metres (default) or in the rig file's own unit")
 
 
-def export_rig(rig, out, *, formats=("obj", "gltf")) -> list[Path]:
-    """Write ``rig`` to ``out``: ``obj/`` (neutral.obj + one OBJ per shape) and/or ``<name>.gltf`` / ``.glb``."""
+def export_rig(rig, out, *, formats=("obj", "gltf"), animation=None, unit_m: float = 1.0) -> list[Path]:
+    """Write ``rig`` to ``out``: ``obj/`` (neutral.obj + one OBJ per shape, in units of ``unit_m`` metres) and/or
+    ``<name>.gltf`` / ``.glb`` (metres, the glTF standard), with ``animation`` (a
+    :class:`~kdfaces.motion.FaceAnimation`) as morph-weight animation when given."""
     from .gltf import save_gltf
     from .rigfiles import save_obj_folder
 
@@ -68,39 +76,9 @@ def export_rig(rig, out, *, formats=("obj", "gltf")) -> list[Path]:
     written = []
     for fmt in dict.fromkeys(formats):
         if fmt == "obj":
-            written.append(save_obj_folder(rig, out / "obj"))
+            written.append(save_obj_folder(rig, out / "obj", unit_m=unit_m))
         else:
-            written.append(save_gltf(rig, out / f"{rig.name}.{fmt}"))
+            written.append(save_gltf(rig, out / f"{rig.name}.{fmt}", animation=animation))
     return written
 
 
-def _export_rig_command(args) -> dict:
-    from .rigfiles import load_rig
-    from .summary import write_summary
-
-    if Path(args.rig).suffix in (".gltf", ".glb"):
-        from .gltf import load_gltf_rig
-
-        rig = load_gltf_rig(args.rig)
-    else:
-        rig = load_rig(args.rig)
-    out = Path(args.out)
-    written = export_rig(rig, out, formats=args.format or ["obj", "gltf"])
-    summary = {
-        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes,
-                "diameter_m": rig.diameter, "max_delta_m": float(np.abs(rig.deltas).max())},
-        "outputs": [str(p.relative_to(out)) for p in written],
-    }
-    write_summary(out, summary)
-    return summary
-
-
-def add_export_rig_parser(subparsers) -> None:
-    """Add ``kdfaces export-rig [--rig R] [--out DIR] [--format obj|gltf|glb ...] [--json]``."""
-    ap = subparsers.add_parser("export-rig", help="write a rig as an OBJ folder and/or glTF for other tools")
-    ap.add_argument("--rig", default="default", help="rig: 'default', an .npz, an OBJ folder or a .gltf/.glb")
-    ap.add_argument("--out", default="kd-out/rig", help="output folder (default kd-out/rig)")
-    ap.add_argument("--format", action="append", choices=RIG_FORMATS,
-                    help="obj, gltf or glb (repeatable; default obj and gltf)")
-    ap.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    ap.set_defaults(func=_export_rig_command)

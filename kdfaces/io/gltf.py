@@ -30,6 +30,7 @@ from ..motion.trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.names import canonical_name
 from .atomic import write_bytes_atomic
+from .obj import triangulate, vertex_normals
 from .pointcache import infer_fps
 
 __all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf"]
@@ -121,8 +122,13 @@ class _Document:
         a = self._item("accessors", index, where)
         where = f"{where} (accessor {index})"
         dtype, width = _COMPONENTS.get(a.componentType), _WIDTH.get(a.type)
-        if dtype is None or width is None or a.count is None or a.count < 0:
-            raise KDInputError(f"{self.path}: {where}: unsupported componentType {a.componentType} / type {a.type}")
+        if isinstance(a.count, bool) or not isinstance(a.count, int) or a.count < 1:
+            raise KDInputError(f"{self.path}: {where}: count {a.count!r}; expected a positive number of elements")
+        if dtype is None:
+            raise KDInputError(f"{self.path}: {where}: componentType {a.componentType!r}; expected one of "
+                               f"{sorted(_COMPONENTS)}")
+        if width is None:
+            raise KDInputError(f"{self.path}: {where}: type {a.type!r}; expected one of {sorted(_WIDTH)}")
         if a.bufferView is None:
             out = np.zeros((a.count, width), dtype)
         else:
@@ -221,7 +227,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     if k == 0:
         raise KDInputError(f"{doc.path}: {label} has no morph targets; a blend-shape rig needs at least one "
                            f"(export the shape keys / blend shapes as glTF morph targets)")
-    neutral, deltas, faces, offset = [], [], [], 0
+    neutral, deltas, faces, uvs, parts, offset = [], [], [], [], [], 0
     for pi, prim in enumerate(m.primitives):
         where = f"{label} primitive {pi}"
         if prim.mode not in (None, _TRIANGLES):
@@ -247,18 +253,51 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
                 raise KDInputError(f"{doc.path}: {where}: morph target {ti} has {len(dt)} vertices, POSITION has "
                                    f"{len(x)} (mismatched vertex counts)")
             d[ti] = dt
+        uv_index = _attr(prim.attributes, "TEXCOORD_0")
+        if uv_index is not None:
+            st = doc.floats(uv_index, 2, f"{where} TEXCOORD_0")
+            uvs.append(np.stack([st[:, 0], 1.0 - st[:, 1]], axis=1))  # glTF's origin is top-left
         neutral.append(x)
         deltas.append(d)
         faces.append(tri.reshape(-1, 3) + offset)
+        parts.append(np.full(len(x), pi))
         offset += len(x)
     x0, dx, f = np.concatenate(neutral), np.concatenate(deltas, axis=1), np.concatenate(faces)
+    uv = np.concatenate(uvs) if len(uvs) == len(m.primitives) else None
+    part_names = [_primitive_name(doc, p, i) for i, p in enumerate(m.primitives)]
+    source = None
+    src_acc = (m.extras or {}).get("kdfaces_source_vertices") if isinstance(m.extras, dict) else None
+    if src_acc is not None and len(m.primitives) == 1:
+        source = doc.accessor(int(src_acc), f"{label} extras.kdfaces_source_vertices").reshape(-1).astype(np.int64)
+        if len(source) != len(x0) or source.min() < 0:
+            raise KDInputError(f"{doc.path}: {label}: extras.kdfaces_source_vertices does not map every vertex")
     if apply_node_transform:
         node = next((i for i, n in enumerate(doc.gltf.nodes or []) if n.mesh == mesh_index), None)
         if node is not None:
             w = _world_matrix(doc.gltf, node)
             x0 = x0 @ w[:3, :3].T + w[:3, 3]
             dx = dx @ w[:3, :3].T
-    return x0, dx, f, _target_names(doc, m, k), m.name or doc.path.stem
+    names = _target_names(doc, m, k)
+    name = m.name or doc.path.stem
+    vertex_parts = np.concatenate(parts)
+    if source is None:
+        uv_corners = None if uv is None else uv[f].reshape(-1, 2)
+        return BlendshapeRig.create(x0, dx, f, names, name=name, uvs=uv_corners, part_names=part_names,
+                                    vertex_parts=vertex_parts)
+    n = int(source.max()) + 1  # merge the vertices split at UV seams back (written by save_gltf)
+    neutral, deltas, vparts = np.zeros((n, 3)), np.zeros((k, n, 3)), np.zeros(n, dtype=np.int64)
+    neutral[source], deltas[:, source], vparts[source] = x0, dx, vertex_parts
+    uv_corners = None if uv is None else uv[f].reshape(-1, 2)
+    return BlendshapeRig.create(neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
+                                vertex_parts=vparts)
+
+
+def _primitive_name(doc: _Document, prim, index: int) -> str:
+    """A part name for a primitive: its material's name, else ``primitive<i>``."""
+    materials = doc.gltf.materials or []
+    if prim.material is not None and 0 <= prim.material < len(materials) and materials[prim.material].name:
+        return str(materials[prim.material].name)
+    return f"primitive{index}"
 
 
 def _pick_animation(doc: _Document, mesh_index: int, animation):
@@ -334,17 +373,15 @@ def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | Non
     """
     doc = _Document(path)
     index = _pick_mesh(doc, mesh)
-    x0, dx, f, names, name = _read_rig(doc, index, apply_node_transform=apply_node_transform)
-    rig = BlendshapeRig.create(x0, dx, f, names, name=name)
-    return rig, _read_animation(doc, index, names, animation=animation, fps=fps)
+    rig = _read_rig(doc, index, apply_node_transform=apply_node_transform)
+    return rig, _read_animation(doc, index, list(rig.shape_names), animation=animation, fps=fps)
 
 
 def load_gltf_rig(path, *, mesh: int | str | None = None, apply_node_transform: bool = True) -> BlendshapeRig:
     """The blend-shape rig of a glTF file (see :func:`load_gltf`); a mesh without morph targets is an error."""
     doc = _Document(path)
     index = _pick_mesh(doc, mesh)
-    x0, dx, f, names, name = _read_rig(doc, index, apply_node_transform=apply_node_transform)
-    return BlendshapeRig.create(x0, dx, f, names, name=name)
+    return _read_rig(doc, index, apply_node_transform=apply_node_transform)
 
 
 def load_gltf_animation(path, *, mesh: int | str | None = None, animation: int | str | None = None,
@@ -425,12 +462,29 @@ def _sampled_weights(rig: BlendshapeRig, animation: FaceAnimation) -> tuple[np.n
     return times, KinematicTrajectory(rig, shapes_only).weights(times, 0)[0]
 
 
+def _split_at_uv_seams(rig: BlendshapeRig):
+    """(source vertex of each glTF vertex (M,), triangles (F, 3) into them, UV per glTF vertex (M, 2) or None).
+
+    glTF stores one UV per vertex, a rig one per polygon corner: a vertex whose corners carry different UVs (a seam)
+    becomes one glTF vertex per distinct UV, all with the same position, normal and morph deltas."""
+    if rig.uvs is None:
+        return np.arange(rig.num_vertices), rig.faces, None
+    tri_corner = triangulate(rig.polygon_counts, np.arange(len(rig.polygon_corners)))  # polygon-corner ids
+    vertex = rig.polygon_corners[tri_corner].reshape(-1)
+    uv = rig.uvs[tri_corner.reshape(-1)]
+    keys = np.concatenate([vertex[:, None], np.ascontiguousarray(uv).view(np.int64)], axis=1)
+    unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return unique[:, 0], inverse.reshape(-1, 3), uv[first]
+
+
 def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = None, sparse: bool = True) -> Path:
     """Write ``rig`` as a glTF 2.0 mesh with morph targets to ``.gltf`` (embedded buffer) or ``.glb``, atomically.
 
     Args:
         rig: the rig; neutral and deltas are stored as float32 [m], faces as uint32, names in
-            ``mesh.extras.targetNames``. The skeleton is not written.
+            ``mesh.extras.targetNames``, smooth vertex normals as ``NORMAL`` (so other tools shade it smoothly),
+            UVs as ``TEXCOORD_0`` (vertices split where UVs have seams; ``extras.kdfaces_source_vertices`` names the
+            accessor mapping them back, which :func:`load_gltf_rig` uses). The skeleton is not written.
         path: output file; the extension picks the container.
         animation: optional; its shape weights are sampled at its frame times and written as one LINEAR weights
             channel (head rotations are not written).
@@ -445,15 +499,25 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
         raise KDInputError(f"{p}: rig {rig.name!r} has too many vertices for uint32 indices")
     g = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="kdfaces"))
     b = _BinaryBuilder(g)
-    x = np.ascontiguousarray(rig.neutral, dtype="<f4")
+    src, faces, uv = _split_at_uv_seams(rig)
+    x = np.ascontiguousarray(rig.neutral[src], dtype="<f4")
+    normals = np.ascontiguousarray(vertex_normals(rig.neutral, rig.faces)[src], dtype="<f4")
+    attributes = pygltflib.Attributes(POSITION=b.accessor(x, "VEC3", target=_ARRAY_BUFFER, bounds=x),
+                                      NORMAL=b.accessor(normals, "VEC3", target=_ARRAY_BUFFER))
+    extras = {"targetNames": list(rig.shape_names)}
+    if uv is not None:  # glTF's UV origin is the top-left corner: v flips
+        st = np.ascontiguousarray(np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1), dtype="<f4")
+        attributes.TEXCOORD_0 = b.accessor(st, "VEC2", target=_ARRAY_BUFFER)
+    if len(src) != rig.num_vertices:
+        extras["kdfaces_source_vertices"] = b.accessor(np.ascontiguousarray(src, dtype="<u4"), "SCALAR")
     prim = pygltflib.Primitive(
-        attributes=pygltflib.Attributes(POSITION=b.accessor(x, "VEC3", target=_ARRAY_BUFFER, bounds=x)),
-        indices=b.accessor(np.ascontiguousarray(rig.faces.reshape(-1), dtype="<u4"), "SCALAR",
+        attributes=attributes,
+        indices=b.accessor(np.ascontiguousarray(faces.reshape(-1), dtype="<u4"), "SCALAR",
                            target=_ELEMENT_ARRAY_BUFFER),
         mode=_TRIANGLES,
-        targets=[pygltflib.Attributes(POSITION=_target_accessor(b, d, sparse=sparse)) for d in rig.deltas])
+        targets=[pygltflib.Attributes(POSITION=_target_accessor(b, d[src], sparse=sparse)) for d in rig.deltas])
     g.meshes.append(pygltflib.Mesh(name=rig.name, primitives=[prim], weights=[0.0] * rig.num_shapes,
-                                   extras={"targetNames": list(rig.shape_names)}))
+                                   extras=extras))
     g.nodes.append(pygltflib.Node(name=rig.name, mesh=0))
     g.scenes.append(pygltflib.Scene(nodes=[0]))
     g.scene = 0

@@ -102,9 +102,18 @@ def read_livelinkface(path) -> LiveLinkTake:
         return v
 
     weights = np.stack([column(col[n], n) for n in ARKIT_NAMES], axis=1)
+    bad = np.abs(weights - 0.5) > 1.5  # weights live in [0, 1]; capture noise goes a little beyond, never this far
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        raise KDInputError(f"{p}: column {ARKIT_NAMES[c]!r}, row {r + 2}: weight {weights[r, c]:.6g}; expected a "
+                           "blend-shape weight in [0, 1]")
     head = None
     if all(h in header for h in _HEAD):
         head = np.stack([column(header.index(h), h) for h in _HEAD], axis=1)
+        if (np.abs(head) > np.pi + 1e-6).any():
+            r, c = np.argwhere(np.abs(head) > np.pi + 1e-6)[0]
+            raise KDInputError(f"{p}: column {_HEAD[c]!r}, row {r + 2}: {head[r, c]:.6g}; expected an angle in "
+                               "radians within ±π")
     # duplicated timecodes (the app repeats the first sample) keep the last row; order by time
     order = np.argsort(times, kind="stable")
     times, weights = times[order], weights[order]
@@ -125,7 +134,9 @@ def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolat
                            start: float = 0.0, end: float | None = None) -> FaceAnimation:
     """A :class:`FaceAnimation` from a take: one 52-channel weight track, and a head drive if angles are non-zero.
 
-    ``start``/``end`` [s] crop the take (relative to its first sample); ``fps`` defaults to the capture rate.
+    ``start``/``end`` [s] crop the take (relative to its first sample); ``fps`` defaults to the capture rate, so
+    the default simulation step puts every captured frame on the step grid. Channels a rig lacks are skipped with
+    a warning (``strict_channels=False``; see :class:`~kdfaces.motion.KinematicTrajectory`).
     """
     take = take_or_path if isinstance(take_or_path, LiveLinkTake) else read_livelinkface(take_or_path)
     t = take.times
@@ -140,5 +151,5 @@ def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolat
         drives = (JointDrive(KeyframeCurve.create(t[sel], take.head[sel], interpolation=interpolation,
                                                   where=f"{take.path} head angles")),)
     return FaceAnimation(tracks=(track,), skeleton=SkeletonAnimation(drives), start=start, end=end,
-                         fps=fps or take.rate_hz, name=Path(take.path).stem)
+                         fps=fps or take.rate_hz, name=Path(take.path).stem, strict_channels=False)
 

@@ -1,14 +1,19 @@
 """Point caches of computed trajectories: USD (``UsdGeom.Mesh``) and Blender PC2.
 
 A point cache stores vertex positions x(t_f) [m], shape (F, N, 3), at frame times t_f [s], shape (F,), for a
-fixed triangle mesh. Frame f sits at frame number ``t_f · fps`` in both formats:
+fixed mesh:
 
-* **USD** (``usd-core``): one ``UsdGeom.Mesh`` with faces, time-sampled ``points`` and ``extent`` at time codes
-  ``t_f · fps``; ``timeCodesPerSecond = framesPerSecond = fps``, ``metersPerUnit = 1``, up axis Y.
+* **USD** (``usd-core``): one ``UsdGeom.Mesh`` with its polygons (quads stay quads: ``faceVertexCounts``), UVs as
+  the face-varying primvar ``st`` when the rig has them, and time-sampled ``points`` and ``extent`` at time codes
+  ``t_f · fps``; ``timeCodesPerSecond = framesPerSecond = fps``, up axis Y, ``metersPerUnit`` = the unit written
+  (1 for metres).
 * **PC2** (Blender's MeshCache modifier, ``MOD_meshcache_pc2.c``): a little-endian 32-byte header
   ``char[12] "POINTCACHE2\\0", int32 version = 1, int32 points, float32 start frame, float32 sampling (frames
   between samples), int32 samples``, then float32 xyz per point per sample. PC2 has no faces and needs uniformly
-  spaced samples.
+  spaced samples. Blender's modifier (default "Frame" time mode) shows sample *k* at scene frame *k* and ignores
+  the header's start, while a new Blender scene starts at frame 1: so the writer puts ``frame_offset`` (default 1)
+  copies of the first frame before it, and the header says start 0, sampling 1. The shot's first frame then plays
+  at scene frame 1 whatever its start time, and a reader that honours the header agrees.
 
 Both formats store float32; writers go through :class:`~kdfaces.io.rigfiles.atomic_path`, so a failed write
 leaves no file behind.
@@ -24,9 +29,10 @@ import numpy as np
 
 from ..errors import KDInputError, check_finite
 from .atomic import atomic_path, write_bytes_atomic
+from .obj import triangulate
 
 __all__ = [
-    "PointCache", "PC2_HEADER", "write_usd", "read_usd", "write_pc2", "read_pc2", "infer_fps",
+    "PointCache", "PC2_HEADER", "PC2_FRAME_OFFSET", "write_usd", "read_usd", "write_pc2", "read_pc2", "infer_fps",
 ]
 
 PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, sampling [frames], samples
@@ -43,13 +49,20 @@ class PointCache:
         positions: vertex positions [m], shape (F, N, 3), float64 (values are float32-exact).
         times: frame times [s], shape (F,), float64.
         fps: frames per second [1/s] the file was written with.
-        faces: triangle vertex indices, shape (M, 3), int64; None for PC2 (which stores no faces).
+        faces: triangle vertex indices, shape (M, 3), int64 (polygons fan-triangulated); None for PC2.
+        polygon_counts, polygon_corners: the stored polygons (USD), or None.
+        uvs: per-corner texture coordinates (Σ counts, 2) (USD primvar ``st``), or None.
+        meters_per_unit: the unit the file stores (positions are converted to metres already).
     """
 
     positions: np.ndarray
     times: np.ndarray
     fps: float
     faces: np.ndarray | None = None
+    polygon_counts: np.ndarray | None = None
+    polygon_corners: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+    meters_per_unit: float = 1.0
 
 
 def infer_fps(times, *, fps: float | None = None, where: str = "point cache") -> float:
@@ -89,16 +102,20 @@ def _check_cache(positions, times, faces, where: str):
     return x, t, f
 
 
-def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_name: str = "face") -> Path:
+def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_name: str = "face",
+              polygons=None, uvs=None, unit_m: float = 1.0) -> Path:
     """Write a USD point cache (``.usd``/``.usdc`` binary, ``.usda`` text) atomically.
 
     Args:
         path: output file; the extension picks the USD encoding.
         positions: vertex positions [m], shape (F, N, 3).
         times: frame times [s], shape (F,), strictly increasing.
-        faces: triangles, shape (M, 3), indices into N.
+        faces: triangles, shape (M, 3), indices into N (used when ``polygons`` is None).
         fps: frames (and time codes) per second; inferred from ``times`` if None.
         prim_name: the mesh prim is ``/<prim_name>``.
+        polygons: (counts (P,), corner vertex indices (Σ counts,)): the mesh's own polygons (quads stay quads).
+        uvs: per-corner texture coordinates (Σ counts, 2), written as the face-varying primvar ``st``.
+        unit_m: metres per stored unit (``metersPerUnit``; 0.01 writes centimetres).
     """
     from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
@@ -106,24 +123,39 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
     if p.suffix not in (".usd", ".usda", ".usdc"):
         raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
     x, t, f = _check_cache(positions, times, faces, str(p))
-    if f is None:
-        raise KDInputError(f"{p}: USD point caches need faces, shape (M, 3)")
+    if polygons is not None:
+        counts, corners = (np.asarray(a, dtype=np.int64) for a in polygons)
+        if corners.size and corners.max() >= x.shape[1]:
+            raise KDInputError(f"{p}: polygons index vertex {int(corners.max())} but positions have {x.shape[1]}")
+    elif f is not None:
+        counts, corners = np.full(len(f), 3, dtype=np.int64), f.reshape(-1)
+    else:
+        raise KDInputError(f"{p}: USD point caches need faces, shape (M, 3), or polygons")
+    if uvs is not None and np.shape(uvs) != (len(corners), 2):
+        raise KDInputError(f"{p}: uvs: expected one (u, v) per polygon corner, shape ({len(corners)}, 2)")
+    if not (np.isfinite(unit_m) and unit_m > 0):
+        raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
+    x = x / unit_m
     if not Sdf.Path.IsValidIdentifier(prim_name):
         raise KDInputError(f"{p}: prim name {prim_name!r} is not a valid USD identifier")
     rate = infer_fps(t, fps=fps, where=str(p))
     codes = t * rate
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageMetersPerUnit(stage, float(unit_m))
     stage.SetTimeCodesPerSecond(rate)
     stage.SetFramesPerSecond(rate)
     stage.SetStartTimeCode(float(codes[0]))
     stage.SetEndTimeCode(float(codes[-1]))
     mesh = UsdGeom.Mesh.Define(stage, f"/{prim_name}")
     stage.SetDefaultPrim(mesh.GetPrim())
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(f), 3, dtype=np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(f.astype(np.int32).reshape(-1)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(corners.astype(np.int32)))
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    if uvs is not None:
+        st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                     UsdGeom.Tokens.faceVarying)
+        st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uvs, dtype=np.float32)))
     points_attr, extent_attr = mesh.CreatePointsAttr(), mesh.CreateExtentAttr()
     x32 = np.ascontiguousarray(x, dtype=np.float32)
     extents = np.stack([x32.min(axis=1), x32.max(axis=1)], axis=1)  # (F, 2, 3)
@@ -168,9 +200,12 @@ def read_usd(path, *, prim_path: str | None = None) -> PointCache:
             raise KDInputError(f"{p}: no UsdGeom.Mesh prim found")
     mesh = UsdGeom.Mesh(prim)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
-    if counts.size and (counts != 3).any():
-        raise KDInputError(f"{p}: mesh {prim.GetPath()} has non-triangle faces; expected a triangle mesh")
-    faces = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64).reshape(-1, 3)
+    corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+    if counts.size and ((counts < 3).any() or counts.sum() != len(corners)):
+        raise KDInputError(f"{p}: mesh {prim.GetPath()}: faceVertexCounts do not match faceVertexIndices")
+    faces = triangulate(counts, corners)
+    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
+    uvs = np.asarray(st.Get(), dtype=np.float64) if st and st.HasValue() else None
     attr = mesh.GetPointsAttr()
     codes = np.asarray(attr.GetTimeSamples(), dtype=np.float64)
     samples = [attr.Get(float(c)) for c in codes] if len(codes) else [attr.Get()]
@@ -181,20 +216,30 @@ def read_usd(path, *, prim_path: str | None = None) -> PointCache:
         raise KDInputError(f"{p}: mesh {prim.GetPath()} changes vertex count over time ({sorted(sizes)}); "
                            f"expected a fixed vertex count")
     x = np.stack([np.asarray(s, dtype=np.float32) for s in samples]).astype(np.float64)
-    x *= UsdGeom.GetStageMetersPerUnit(stage)
+    unit = float(UsdGeom.GetStageMetersPerUnit(stage))
+    x *= unit
     rate = float(stage.GetTimeCodesPerSecond())
-    return PointCache(positions=x, times=codes / rate, fps=float(stage.GetFramesPerSecond()), faces=faces)
+    return PointCache(positions=x, times=codes / rate, fps=float(stage.GetFramesPerSecond()), faces=faces,
+                      polygon_counts=counts, polygon_corners=corners, uvs=uvs, meters_per_unit=unit)
 
 
-def write_pc2(path, positions, times, *, fps: float | None = None) -> Path:
-    """Write a Blender PC2 point cache atomically.
+#: Copies of the first frame a PC2 file starts with, so that Blender (which shows sample k at scene frame k and
+#: starts scenes at frame 1) plays the shot's first frame at frame 1.
+PC2_FRAME_OFFSET = 1
+
+
+def write_pc2(path, positions, times, *, fps: float | None = None, unit_m: float = 1.0,
+              frame_offset: int = PC2_FRAME_OFFSET) -> Path:
+    """Write a Blender PC2 point cache atomically (see the module docstring for the frame convention).
 
     Args:
         path: output ``.pc2`` file.
         positions: vertex positions [m], shape (F, N, 3).
-        times: frame times [s], shape (F,), uniformly spaced (PC2 stores a start frame and a fixed step).
-        fps: frames per second; inferred from ``times`` if None. The header holds start frame ``t_0 · fps`` and
-            sampling ``(t_1 − t_0) · fps`` frames (1 for one sample per frame).
+        times: frame times [s], shape (F,), uniformly spaced (PC2 stores a fixed step).
+        fps: frames per second; inferred from ``times`` if None. The header holds start 0 and sampling
+            ``(t_1 − t_0) · fps`` frames (1 for one sample per frame).
+        unit_m: metres per stored unit (0.01 writes centimetres).
+        frame_offset: copies of the first frame written before it (the shot's first frame plays at this frame).
     """
     p = Path(path)
     x, t, _ = _check_cache(positions, times, None, str(p))
@@ -203,14 +248,22 @@ def write_pc2(path, positions, times, *, fps: float | None = None) -> Path:
     if len(t) > 2 and np.abs(np.diff(t) - step).max() > _UNIFORM_RTOL * max(step, abs(t[-1])):
         raise KDInputError(f"{p}: PC2 needs uniformly spaced frame times; got spacings from {np.diff(t).min()} to "
                            f"{np.diff(t).max()} s")
-    header = PC2_HEADER.pack(PC2_SIGNATURE, 1, x.shape[1], t[0] * rate, step * rate, len(x))
+    if not (np.isfinite(unit_m) and unit_m > 0):
+        raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
+    if isinstance(frame_offset, bool) or int(frame_offset) != frame_offset or frame_offset < 0:
+        raise KDInputError(f"{p}: frame_offset: expected a whole number of frames ≥ 0, got {frame_offset}")
+    x = np.concatenate([np.repeat(x[:1], int(frame_offset), axis=0), x]) / unit_m
+    header = PC2_HEADER.pack(PC2_SIGNATURE, 1, x.shape[1], 0.0, step * rate, len(x))
     return write_bytes_atomic(p, header + np.ascontiguousarray(x, dtype="<f4").tobytes())
 
 
-def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None) -> PointCache:
-    """Read a PC2 file. Frame f is at time ``(start + f · sampling) / fps`` [s].
+def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m: float = 1.0,
+             frame_offset: int = PC2_FRAME_OFFSET) -> PointCache:
+    """Read a PC2 file written by :func:`write_pc2`: the ``frame_offset`` leading copies are dropped and frame f is
+    at time ``f · sampling / fps`` [s] from the shot's first frame (PC2 does not store the shot's start time).
 
-    ``num_vertices``, if given, must match the file's point count (a cache for another mesh is an error).
+    ``num_vertices``, if given, must match the file's point count (a cache for another mesh is an error);
+    positions are multiplied by ``unit_m`` (metres per stored unit).
     """
     p = Path(path)
     if not p.is_file():
@@ -230,6 +283,9 @@ def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None) -> Poi
     if num_vertices is not None and points != num_vertices:
         raise KDInputError(f"{p}: {points} points per sample, expected {num_vertices} (mismatched vertex counts)")
     x = np.frombuffer(data, dtype="<f4", offset=PC2_HEADER.size).reshape(samples, points, 3).astype(np.float64)
+    if not 0 <= frame_offset < samples:
+        raise KDInputError(f"{p}: {samples} samples, fewer than the {frame_offset} leading copies expected")
+    x = x[frame_offset:] * unit_m
     rate = infer_fps(None, fps=fps, where=str(p))
-    times = (start + np.arange(samples) * float(sampling)) / rate
-    return PointCache(positions=x, times=times, fps=rate)
+    times = np.arange(len(x)) * float(sampling) / rate
+    return PointCache(positions=x, times=times, fps=rate, meters_per_unit=unit_m)

@@ -1,11 +1,15 @@
-"""Rig loaders and writers: the npz format, OBJ folders and MakeHuman base OBJ + ``.target`` folders.
+"""Rig loaders and writers: the npz format, OBJ folders, glTF and MakeHuman base OBJ + ``.target`` folders.
 
-All loaders return a :class:`~kdfaces.rig.BlendshapeRig` in metres; unit conversion happens here and nowhere else.
+All loaders return a :class:`~kdfaces.rig.BlendshapeRig` in metres; unit conversion happens here and nowhere else:
+``units`` ("m", "dm", "cm", "mm") or ``scale`` (metres per file unit) say what the file's numbers are. A head that
+comes out implausibly large or small for the stated unit gets one :class:`RigUnitsWarning` naming the likely unit.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -14,15 +18,54 @@ from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.skeleton import Skeleton
 from .atomic import atomic_path
+from .obj import read_obj_mesh, read_obj_vertices, write_obj_mesh
 
 __all__ = [
-    "DEFAULT_RIG_PATH", "load_default_rig", "load_rig", "load_npz", "save_npz", "read_obj", "write_obj",
-    "load_obj_folder", "save_obj_folder", "load_makehuman",
+    "DEFAULT_RIG_PATH", "UNITS", "RigUnitsWarning", "unit_scale", "load_default_rig", "load_rig", "load_npz",
+    "save_npz", "read_obj", "write_obj", "load_obj_folder", "save_obj_folder", "load_makehuman",
 ]
 
 DEFAULT_RIG_PATH = Path(os.environ.get("KDFACES_MESHES", Path(__file__).resolve().parents[2] / "meshes")) / \
     "makehuman_head.npz"
 MAKEHUMAN_UNIT_M = 0.1  # MakeHuman OBJ and .target files are in decimetres
+#: Metres per unit of each length unit a rig file may be written in.
+UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001}
+#: A head rig (the mesh's largest extent) is expected between these sizes [m].
+PLAUSIBLE_HEAD_M = (0.05, 1.0)
+
+
+class RigUnitsWarning(UserWarning):
+    """A rig's size is implausible for a head in the stated unit (probably a unit mix-up)."""
+
+
+def unit_scale(units: str | None = None, scale: float | None = None, *, default: float = 1.0,
+               where: str = "rig") -> float:
+    """Metres per file unit from ``units`` (one of :data:`UNITS`) or ``scale``; ``default`` when neither is given."""
+    if units is not None and scale is not None:
+        raise KDInputError(f"{where}: give units or scale, not both")
+    if units is not None:
+        if units not in UNITS:
+            raise KDInputError(f"{where}.units: expected one of {sorted(UNITS)}, got {units!r}")
+        return UNITS[units]
+    if scale is not None:
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not (np.isfinite(scale) and scale > 0):
+            raise KDInputError(f"{where}.scale: expected a positive number of metres per file unit, got {scale!r}")
+        return float(scale)
+    return float(default)
+
+
+def check_plausible_size(rig: BlendshapeRig, unit_m: float, where: str) -> None:
+    """Warn (:class:`RigUnitsWarning`) when the rig's extent is not head-sized in metres, naming the likely unit."""
+    extent = float((rig.neutral.max(axis=0) - rig.neutral.min(axis=0)).max())
+    lo, hi = PLAUSIBLE_HEAD_M
+    if lo <= extent <= hi:
+        return
+    file_extent = extent / unit_m
+    likely = [u for u, m in UNITS.items() if lo <= file_extent * m <= hi]
+    hint = f"; the numbers fit a head in {likely[0]} (units = \"{likely[0]}\")" if likely else ""
+    stated = next((u for u, m in UNITS.items() if abs(m - unit_m) < 1e-12), f"{unit_m:g} m per unit")
+    warnings.warn(f"{where}: read as {stated}, the rig is {extent:.3g} m across, not a head's "
+                  f"{lo:g}–{hi:g} m{hint}", RigUnitsWarning, stacklevel=3)
 
 
 def _require_file(path) -> Path:
@@ -39,61 +82,111 @@ def load_default_rig() -> BlendshapeRig:
     return load_npz(DEFAULT_RIG_PATH)
 
 
-def load_rig(spec) -> BlendshapeRig:
+def load_rig(spec, *, units: str | None = None, scale: float | None = None, cache_dir=None) -> BlendshapeRig:
     """Load a rig from ``"default"``, an ``.npz``, a glTF (``.gltf``/``.glb``), an OBJ folder, or a MakeHuman folder
-    (``base.obj`` + ``*.target``)."""
+    (``base.obj`` + ``*.target``), converting its ``units`` (or ``scale``, metres per file unit) to metres.
+
+    Defaults: npz and glTF files are in metres (the glTF standard), OBJ folders in metres, MakeHuman in
+    decimetres. An OBJ folder is parsed once per content: with ``cache_dir`` the parsed rig is kept there as an
+    npz named by the hash of the folder's files and the scale.
+    """
     if spec is None or str(spec) == "default":
+        if units is not None or scale is not None:
+            raise KDInputError("rig: the default rig is in metres already; units/scale apply to rig files")
         return load_default_rig()
     p = _require_file(spec)
     if p.is_file() and p.suffix == ".npz":
-        return load_npz(p)
-    if p.is_file() and p.suffix in (".gltf", ".glb"):
+        rig = load_npz(p)
+        unit_m = unit_scale(units, scale, where=str(p))
+        rig = rig if unit_m == 1.0 else _rescaled(rig, unit_m)
+    elif p.is_file() and p.suffix in (".gltf", ".glb"):
         from .gltf import load_gltf_rig
 
-        return load_gltf_rig(p)
-    if p.is_dir():
+        unit_m = unit_scale(units, scale, where=str(p))
+        rig = load_gltf_rig(p)
+        rig = rig if unit_m == 1.0 else _rescaled(rig, unit_m)
+    elif p.is_dir():
         if list(p.glob("*.target")) or list(p.glob("targets/*.target")):
-            return load_makehuman(p / "base.obj", p / "targets" if (p / "targets").is_dir() else p)
-        return load_obj_folder(p)
-    raise KDInputError(f"{p}: expected an .npz or glTF rig, an OBJ folder or a MakeHuman folder (base.obj + .target "
-                       "files)")
+            unit_m = unit_scale(units, scale, default=MAKEHUMAN_UNIT_M, where=str(p))
+            rig = load_makehuman(p / "base.obj", p / "targets" if (p / "targets").is_dir() else p, unit_m=unit_m)
+        else:
+            unit_m = unit_scale(units, scale, where=str(p))
+            rig = load_obj_folder(p, scale=unit_m, cache_dir=cache_dir)
+    else:
+        raise KDInputError(f"{p}: expected an .npz or glTF rig, an OBJ folder or a MakeHuman folder (base.obj + "
+                           ".target files)")
+    check_plausible_size(rig, unit_m, str(p))
+    return rig
+
+
+def _rescaled(rig: BlendshapeRig, unit_m: float) -> BlendshapeRig:
+    """``rig`` with lengths multiplied by ``unit_m`` (file units → metres)."""
+    skel = rig.skeleton
+    if skel is not None:
+        skel = Skeleton(names=skel.names, positions=skel.positions * unit_m, parents=skel.parents,
+                        weights=skel.weights)
+    return BlendshapeRig.create(rig.neutral * unit_m, rig.deltas.astype(np.float64) * unit_m, rig.faces,
+                                rig.shape_names, skeleton=skel, name=rig.name, polygons=rig.polygons, uvs=rig.uvs,
+                                part_names=rig.part_names, vertex_parts=rig.vertex_parts,
+                                source_unit_m=rig.source_unit_m * unit_m)
 
 
 def load_npz(path) -> BlendshapeRig:
-    """Load a rig written by :func:`save_npz` (or ``scripts/build_makehuman_head.py``)."""
+    """Load a rig written by :func:`save_npz` (or ``scripts/build_makehuman_head.py``); lengths in metres."""
     p = _require_file(path)
     try:
         d = np.load(p, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - any unreadable file is one error
         raise KDInputError(f"{p}: not a readable npz rig ({e})") from None
-    missing = {"neutral", "deltas", "faces", "shape_names"} - set(d.files)
-    if missing:
-        raise KDInputError(f"{p}: npz rig lacks field(s) {sorted(missing)}")
-    skel = None
-    if "skin_weights" in d.files:
-        w = np.asarray(d["skin_weights"], dtype=np.float64)
-        # weights are stored as float32: rows meant to sum to one are renormalised so fully skinned parts are rigid
-        total = w.sum(axis=1, keepdims=True)
-        w = np.where(np.abs(total - 1.0) < 1e-5, w / np.where(total > 0, total, 1.0), w)
-        skel = Skeleton(
-            names=tuple(str(s) for s in d["joint_names"]),
-            positions=np.asarray(d["joint_positions"], dtype=np.float64),
-            parents=np.asarray(d["joint_parents"], dtype=np.int64),
-            weights=w,
-        )
-    name = str(d["name"]) if "name" in d.files else p.stem
-    return BlendshapeRig.create(d["neutral"], d["deltas"], d["faces"], [str(s) for s in d["shape_names"]],
-                                skeleton=skel, name=name)
+    with d:
+        missing = {"neutral", "deltas", "faces", "shape_names"} - set(d.files)
+        if missing:
+            raise KDInputError(f"{p}: npz rig lacks field(s) {sorted(missing)}")
+        skel = None
+        if "skin_weights" in d.files:
+            w = np.asarray(d["skin_weights"], dtype=np.float64)
+            # weights are stored as float32: rows meant to sum to one are renormalised so fully skinned parts are
+            # rigid
+            total = w.sum(axis=1, keepdims=True)
+            w = np.where(np.abs(total - 1.0) < 1e-5, w / np.where(total > 0, total, 1.0), w)
+            skel = Skeleton(
+                names=tuple(str(s) for s in d["joint_names"]),
+                positions=np.asarray(d["joint_positions"], dtype=np.float64),
+                parents=np.asarray(d["joint_parents"], dtype=np.int64),
+                weights=w,
+            )
+        name = str(d["name"]) if "name" in d.files else p.stem
+        extra = {}
+        if "polygon_counts" in d.files:
+            extra["polygons"] = (d["polygon_counts"], d["polygon_corners"])
+        if "uvs" in d.files:
+            extra["uvs"] = d["uvs"]
+        if "part_names" in d.files:
+            extra["part_names"] = [str(s) for s in d["part_names"]]
+            extra["vertex_parts"] = d["vertex_parts"]
+        if "source_unit_m" in d.files:
+            extra["source_unit_m"] = float(d["source_unit_m"])
+        try:
+            return BlendshapeRig.create(d["neutral"], d["deltas"], d["faces"], [str(s) for s in d["shape_names"]],
+                                        skeleton=skel, name=name, **extra)
+        except KDInputError as e:
+            raise KDInputError(f"{p}: {e}") from None
 
 
 def save_npz(rig: BlendshapeRig, path) -> Path:
-    """Write ``rig`` to an npz (atomically)."""
+    """Write ``rig`` to an npz (atomically), with its polygons, UVs and parts when it has them."""
     fields = dict(name=np.array(rig.name), neutral=rig.neutral, deltas=rig.deltas, faces=rig.faces,
-                  shape_names=np.array(rig.shape_names))
+                  shape_names=np.array(rig.shape_names), source_unit_m=np.array(rig.source_unit_m))
     if rig.skeleton is not None:
         s = rig.skeleton
         fields.update(joint_names=np.array(s.names), joint_positions=s.positions, joint_parents=s.parents,
                       skin_weights=s.weights.astype(np.float32))
+    if rig.polygons is not None:
+        fields.update(polygon_counts=rig.polygons[0], polygon_corners=rig.polygons[1])
+    if rig.uvs is not None:
+        fields.update(uvs=rig.uvs)
+    if rig.vertex_parts is not None:
+        fields.update(part_names=np.array(rig.part_names), vertex_parts=rig.vertex_parts)
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, **fields)
     return Path(path)
@@ -101,36 +194,8 @@ def save_npz(rig: BlendshapeRig, path) -> Path:
 
 def read_obj(path, *, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) [file units × scale] in file order and triangles (F, 3); polygons are fan-triangulated."""
-    p = _require_file(path)
-    verts, tris = [], []
-    try:
-        text = p.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise KDInputError(f"{p}: cannot read OBJ ({e})") from None
-    for lineno, line in enumerate(text.splitlines(), 1):
-        if line.startswith("v "):
-            parts = line.split()
-            try:
-                verts.append([float(x) for x in parts[1:4]])
-            except ValueError:
-                raise KDInputError(f"{p}:{lineno}: vertex line needs three numbers, got {line.strip()!r}") from None
-            if len(parts) < 4:
-                raise KDInputError(f"{p}:{lineno}: vertex line needs three numbers, got {line.strip()!r}")
-        elif line.startswith("f "):
-            try:
-                idx = [int(t.split("/")[0]) for t in line.split()[1:]]
-            except ValueError:
-                raise KDInputError(f"{p}:{lineno}: bad face line {line.strip()!r}") from None
-            idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-            tris.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
-    if not verts:
-        raise KDInputError(f"{p}: no vertices ('v' lines) found")
-    v = np.asarray(verts, dtype=np.float64) * scale
-    check_finite(v, f"{p} vertices")
-    f = np.asarray(tris, dtype=np.int64).reshape(-1, 3)
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise KDInputError(f"{p}: face index out of range 1..{len(v)}")
-    return v, f
+    mesh = read_obj_mesh(path, scale=scale)
+    return mesh.vertices, mesh.triangles
 
 
 def write_obj(path, vertices: np.ndarray, faces: np.ndarray | None = None) -> Path:
@@ -142,33 +207,70 @@ def write_obj(path, vertices: np.ndarray, faces: np.ndarray | None = None) -> Pa
     return Path(path)
 
 
-def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float = 1.0) -> BlendshapeRig:
-    """A folder holding ``neutral.obj`` and one OBJ per shape (file stem = shape name), same vertex order."""
+def _folder_key(files: list[Path], scale: float, neutral_name: str) -> str:
+    h = hashlib.sha256(repr((round(scale, 12), neutral_name)).encode())
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float = 1.0,
+                    cache_dir=None) -> BlendshapeRig:
+    """A folder holding ``neutral.obj`` and one OBJ per shape (file stem = shape name), same vertex order.
+
+    Lengths are multiplied by ``scale`` (metres per file unit). The neutral's polygons, UVs and groups become the
+    rig's polygons, uvs and parts. With ``cache_dir``, the parsed rig is kept there as an npz named by the hash of
+    the folder's files (so an edited file is parsed again, never read stale).
+    """
     d = Path(folder)
     if not d.is_dir():
         raise KDInputError(f"{d}: expected a folder of OBJ files")
     neutral_path = d / neutral_name
-    neutral, faces = read_obj(neutral_path, scale=scale)
-    names, deltas = [], []
-    for p in sorted(d.glob("*.obj")):
-        if p.name == neutral_name:
-            continue
-        v, _ = read_obj(p, scale=scale)
+    if not neutral_path.exists():
+        raise KDInputError(f"{neutral_path}: file not found (an OBJ folder rig needs its neutral)")
+    shapes = sorted(p for p in d.glob("*.obj") if p.name != neutral_name)
+    if not shapes:
+        raise KDInputError(f"{d}: no shape OBJ files next to {neutral_name}")
+    cached = None
+    if cache_dir is not None:
+        key = _folder_key([neutral_path, *shapes], scale, neutral_name)
+        cached = Path(cache_dir) / f"rig_{key[:24]}.npz"
+        if cached.exists():
+            return load_npz(cached)
+    mesh = read_obj_mesh(neutral_path, scale=scale)
+    neutral = mesh.vertices
+    deltas = np.empty((len(shapes), len(neutral), 3), dtype=np.float32)
+    for k, p in enumerate(shapes):
+        v = read_obj_vertices(p, scale=scale)
         if v.shape != neutral.shape:
             raise KDInputError(f"{p}: {len(v)} vertices, expected {len(neutral)} as in {neutral_path.name}")
-        names.append(p.stem)
-        deltas.append(v - neutral)
-    if not names:
-        raise KDInputError(f"{d}: no shape OBJ files next to {neutral_name}")
-    return BlendshapeRig.create(neutral, np.stack(deltas), faces, names, name=d.name)
+        deltas[k] = v - neutral
+    uvs = None if mesh.uvs is None else mesh.uvs[mesh.uv_corners]
+    rig = BlendshapeRig.create(neutral, deltas, mesh.triangles, [p.stem for p in shapes], name=d.name,
+                               polygons=(mesh.counts, mesh.corners), uvs=uvs, part_names=mesh.group_names,
+                               vertex_parts=mesh.vertex_groups(), source_unit_m=scale)
+    if cached is not None:
+        save_npz(rig, cached)
+    return rig
 
 
-def save_obj_folder(rig: BlendshapeRig, folder) -> Path:
-    """Write the rig as ``neutral.obj`` + one OBJ per shape (full positions), for other tools."""
+def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
+    """Write the rig as ``neutral.obj`` + one OBJ per shape (full positions), for other tools: its polygons, UVs,
+    parts as groups and smooth normals; lengths divided by ``unit_m`` (metres per written unit; 0.01 writes
+    centimetres)."""
     d = Path(folder)
-    write_obj(d / "neutral.obj", rig.neutral, rig.faces)
+    counts, corners = rig.polygon_counts, rig.polygon_corners
+    groups = None
+    if rig.vertex_parts is not None and rig.part_names:
+        first = rig.vertex_parts[corners[np.concatenate([[0], np.cumsum(counts)[:-1]])]]
+        names = (*rig.part_names, "mesh")
+        groups = (names, np.where(first >= 0, first, len(names) - 1))
+    s = 1.0 / float(unit_m)
+    write_obj_mesh(d / "neutral.obj", rig.neutral * s, counts, corners, uvs=rig.uvs, groups=groups)
     for k, name in enumerate(rig.shape_names):
-        write_obj(d / f"{name}.obj", rig.neutral + rig.deltas[k].astype(np.float64), rig.faces)
+        write_obj_mesh(d / f"{name}.obj", (rig.neutral + rig.deltas[k].astype(np.float64)) * s, counts, corners,
+                       uvs=rig.uvs, groups=groups)
     return d
 
 

@@ -8,6 +8,7 @@ and head joints, with exact derivatives from the curves (no finite differences).
 from __future__ import annotations
 
 import itertools
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -15,11 +16,12 @@ import numpy as np
 
 from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
+from ..rig.names import resolve_channels
 from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
 
-__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory"]
+__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning"]
 
 _TOKENS = itertools.count()
 
@@ -38,7 +40,11 @@ class ShapeTrack:
 
 @dataclass(frozen=True)
 class FaceAnimation:
-    """Blend-shape weight tracks and head rotation drives over ``[start, end]`` seconds, sampled at ``fps``."""
+    """Blend-shape weight tracks and head rotation drives over ``[start, end]`` seconds, sampled at ``fps``.
+
+    ``strict_channels``: a channel that names no shape of the rig is an error (keyed animations, the default), or
+    is skipped with one warning (captures, whose 52 ARKit channels a production rig rarely all has).
+    """
 
     tracks: tuple[ShapeTrack, ...] = ()
     skeleton: SkeletonAnimation = field(default_factory=SkeletonAnimation)
@@ -46,6 +52,7 @@ class FaceAnimation:
     end: float = 1.0
     fps: float = 25.0
     name: str = "animation"
+    strict_channels: bool = True
 
     def __post_init__(self):
         if not (np.isfinite(self.end) and np.isfinite(self.start) and self.end > self.start):
@@ -65,24 +72,53 @@ class FaceAnimation:
         return self.start + np.arange(n) / self.fps
 
 
+class UnmappedChannelsWarning(UserWarning):
+    """Animation channels that drive no shape of the rig (skipped; ``strict`` makes them an error)."""
+
+
 class KinematicTrajectory:
     """x_K(t) of a rig under an animation. Arrays are (T, N, 3) in metres, m/s and m/s².
 
     Time ranges outside the shot hold the end poses (curves are clamped), so KD windows may reach before the start.
+
+    Each channel of the animation drives the rig's shapes as :func:`kdfaces.rig.names.resolve_channels` says: a
+    ``channel_map`` entry, the shape of that name, or both halves of a side-split shape (``browInnerUp`` drives
+    ``browInnerUp_L`` and ``browInnerUp_R``). Channels left over are an error when ``strict`` (default: the
+    animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them; shapes no
+    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use.
     """
 
-    def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, chunk: int = 16,
-                 cache_bytes: int = 256 * 2**20):
+    def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, channel_map: dict | None = None,
+                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20):
         self.rig = rig
         self.animation = animation
         self.chunk = int(chunk)
         # evaluated samples, keyed by time in ns: KD windows, IKD iterations and scrubbing re-read the same grid
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._cache_max = max(1, int(cache_bytes) // (3 * rig.num_vertices * 3 * 8))
-        self._tracks = [(np.asarray(rig.shape_indices(t.names, where=f"animation {animation.name!r}")), t.curve)
-                        for t in animation.tracks]
+        self._cache_max = int(cache_bytes) // (3 * rig.num_vertices * 3 * 8)
+        strict = animation.strict_channels if strict is None else bool(strict)
+        where = f"animation {animation.name!r}"
+        self._tracks, skipped = [], []
+        self.channel_resolution = {}
+        for t in animation.tracks:
+            res = resolve_channels(t.names, rig.shape_names, channel_map=channel_map, where=where)
+            skipped += res.skipped
+            self.channel_resolution.update(res.how)
+            self._tracks.append((res.pairs[:, 0], res.pairs[:, 1], t.curve))
+        if skipped and strict:
+            rig.shape_indices(skipped, where=where)  # raises, naming the first and the closest shapes
+        if skipped:
+            warnings.warn(f"{where}: rig {rig.name!r} has no shape for channel(s) {', '.join(skipped)}; they are "
+                          "skipped (map them in [animation.map], or set strict = true to make this an error)",
+                          UnmappedChannelsWarning, stacklevel=2)
+        self.skipped_channels = tuple(skipped)
+        self._joint_drives = bool(animation.skeleton.drives)
         if animation.skeleton.drives and rig.skeleton is None:
-            raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+            if strict:
+                raise KDInputError(f"animation {animation.name!r} drives joints but rig {rig.name!r} has no skeleton")
+            warnings.warn(f"{where}: rig {rig.name!r} has no skeleton, so the animation's head rotations are ignored",
+                          UnmappedChannelsWarning, stacklevel=2)
+            self._joint_drives = False
         #: identifies the content for caches (rig and animation are immutable, so one token per trajectory)
         self.version = ("kinematic", next(_TOKENS))
         self._joints = None
@@ -131,35 +167,49 @@ class KinematicTrajectory:
         """Shape weights and derivatives: ``order + 1`` arrays (T, K)."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         out = [np.zeros((len(t), self.rig.num_shapes)) for _ in range(order + 1)]
-        for idx, curve in self._tracks:
+        for channel, shape, curve in self._tracks:
+            if len(shape) == 0:
+                continue
             vals = curve.evaluate(t, order)
             for o in range(order + 1):
-                out[o][:, idx] += vals[o]
+                np.add.at(out[o], (slice(None), shape), vals[o][:, channel])
         return tuple(out)
 
     def evaluate(self, times, order: int = 2):
-        """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64."""
+        """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64.
+
+        Samples are kept for re-use (KD windows, IKD sweeps and scrubbing re-read the same step grid) within
+        ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks. Either
+        way the memory does not grow with the number of times ever asked for.
+        """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "trajectory times")
         if order not in (0, 1, 2):
             raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
-        keys = np.round(t * 1e9).astype(np.int64).tolist()
-        if len(set(keys)) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
+        keys = np.round(t * 1e9).astype(np.int64)
+        uniq, first_index, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        if len(uniq) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
             parts = [self._evaluate_chunk(t[i:i + self.chunk]) for i in range(0, len(t), self.chunk)]
             return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
-        first = {}
-        for k, tk in zip(keys, t.tolist()):
-            if k not in self._cache:
-                first.setdefault(k, tk)  # times within 1 ns share a sample, evaluated at the first one asked for
-        missing = list(first)
-        for i in range(0, len(missing), self.chunk):
-            part = np.asarray([first[k] for k in missing[i:i + self.chunk]], dtype=np.float64)
-            x, v, a = self._evaluate_chunk(part)
-            for j, k in enumerate(missing[i:i + self.chunk]):
-                self._cache[k] = np.stack([x[j], v[j], a[j]])
-                if len(self._cache) > self._cache_max:
-                    self._cache.popitem(last=False)
-        samples = np.stack([self._cache[k][: order + 1] for k in keys], axis=1)
+        found = {}
+        missing = []
+        for k, i in zip(uniq.tolist(), first_index.tolist()):
+            sample = self._cache.get(k)
+            if sample is None:
+                missing.append((k, i))  # times within 1 ns share a sample, evaluated at the first one asked for
+            else:
+                self._cache.move_to_end(k)
+                found[k] = sample
+        for c in range(0, len(missing), self.chunk):
+            part = missing[c:c + self.chunk]
+            x, v, a = self._evaluate_chunk(t[[i for _, i in part]])
+            for j, (k, _) in enumerate(part):
+                found[k] = np.stack([x[j], v[j], a[j]])
+        for k, _ in missing:  # cache after the call has what it needs, so nothing it uses is evicted early
+            self._cache[k] = found[k]
+            if len(self._cache) > self._cache_max:
+                self._cache.popitem(last=False)
+        samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
         return tuple(samples[o] for o in range(order + 1))
 
     def positions(self, times) -> np.ndarray:

@@ -28,6 +28,14 @@ class BlendshapeRig:
         shape_names: K names, ARKit spelling where the shape is an ARKit shape.
         skeleton: optional neck/head joints and skin weights.
         name: a label for reports.
+        polygons: the source mesh's polygons as (counts (P,), corner vertex indices (Σ counts,)), int64, or None
+            (then the triangles are the polygons). Simulation and renders use ``faces`` (the loaders make them the
+            polygons' fan triangulation, :func:`kdfaces.io.obj.triangulate`); exports keep quads.
+        uvs: texture coordinates per polygon corner, shape (Σ counts, 2), float64, or None.
+        part_names: names of the mesh's parts (OBJ groups/materials, glTF primitives, or connected pieces).
+        vertex_parts: part index of each vertex, shape (N,), int64 (-1: none), or None.
+        source_unit_m: metres per unit of the file it was loaded from (1 for metres, 0.01 for centimetres): exports
+            can write the rig's own unit back.
     """
 
     neutral: np.ndarray
@@ -36,6 +44,11 @@ class BlendshapeRig:
     shape_names: tuple[str, ...]
     skeleton: Skeleton | None = None
     name: str = "rig"
+    polygons: tuple | None = None
+    uvs: np.ndarray | None = None
+    part_names: tuple[str, ...] = ()
+    vertex_parts: np.ndarray | None = None
+    source_unit_m: float = 1.0
     _flat: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -57,11 +70,37 @@ class BlendshapeRig:
         if self.skeleton is not None and len(self.skeleton.weights) != len(n):
             raise KDInputError(f"rig {self.name!r}: skin weights for {len(self.skeleton.weights)} vertices, mesh has "
                                f"{len(n)}")
+        if self.polygons is not None:
+            counts, corners = self.polygons
+            if counts.ndim != 1 or (counts < 3).any() or corners.shape != (int(counts.sum()),) or (
+                    corners.size and (corners.min() < 0 or corners.max() >= len(n))):
+                raise KDInputError(f"rig {self.name!r} polygons: expected counts ≥ 3 and {int(counts.sum())} corner "
+                                   f"indices in [0, {len(n)})")
+        if self.uvs is not None:
+            m = int(self.polygons[0].sum()) if self.polygons is not None else 3 * len(f)
+            if self.uvs.shape != (m, 2):
+                raise KDInputError(f"rig {self.name!r} uvs: expected one (u, v) per polygon corner, shape ({m}, 2), "
+                                   f"got {self.uvs.shape}")
+        if self.vertex_parts is not None:
+            vp = self.vertex_parts
+            if vp.shape != (len(n),) or (vp.size and (vp.min() < -1 or vp.max() >= len(self.part_names))):
+                raise KDInputError(f"rig {self.name!r} vertex_parts: expected ({len(n)},) part indices in "
+                                   f"[-1, {len(self.part_names)})")
+        if not (np.isfinite(self.source_unit_m) and self.source_unit_m > 0):
+            raise KDInputError(f"rig {self.name!r} source_unit_m: expected a positive number of metres per unit")
         object.__setattr__(self, "_flat", self.deltas.reshape(len(self.deltas), 3 * len(n)).astype(np.float64))
 
     @classmethod
-    def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig") -> BlendshapeRig:
-        """Build a rig converting arrays to the dtype contract (float64 positions, float32 deltas, int64 faces)."""
+    def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig", polygons=None, uvs=None,
+               part_names=(), vertex_parts=None, source_unit_m: float = 1.0) -> BlendshapeRig:
+        """Build a rig converting arrays to the dtype contract (float64 positions, float32 deltas, int64 faces).
+
+        ``neutral`` (N, 3) [m], ``deltas`` (K, N, 3) [m], ``faces`` (F, 3), ``shape_names`` K names; the optional
+        mesh attributes are described on the class.
+        """
+        if polygons is not None:
+            polygons = (np.ascontiguousarray(polygons[0], dtype=np.int64),
+                        np.ascontiguousarray(polygons[1], dtype=np.int64))
         return cls(
             neutral=np.ascontiguousarray(neutral, dtype=np.float64),
             deltas=np.ascontiguousarray(deltas, dtype=np.float32),
@@ -69,7 +108,28 @@ class BlendshapeRig:
             shape_names=tuple(canonical_name(str(s)) for s in shape_names),
             skeleton=skeleton,
             name=name,
+            polygons=polygons,
+            uvs=None if uvs is None else np.ascontiguousarray(uvs, dtype=np.float64),
+            part_names=tuple(str(p) for p in part_names),
+            vertex_parts=None if vertex_parts is None else np.ascontiguousarray(vertex_parts, dtype=np.int64),
+            source_unit_m=float(source_unit_m),
         )
+
+    @property
+    def polygon_counts(self) -> np.ndarray:
+        """Corners per polygon (P,): the source polygons', or 3 per triangle."""
+        return self.polygons[0] if self.polygons is not None else np.full(len(self.faces), 3, dtype=np.int64)
+
+    @property
+    def polygon_corners(self) -> np.ndarray:
+        """Vertex index of every polygon corner (Σ counts,)."""
+        return self.polygons[1] if self.polygons is not None else self.faces.reshape(-1)
+
+    def part_vertices(self, name: str) -> np.ndarray:
+        """Vertex indices (G,) of the part called ``name``."""
+        if self.vertex_parts is None or name not in self.part_names:
+            raise KDInputError(f"rig {self.name!r}: no part {name!r}; parts are {list(self.part_names)}")
+        return np.flatnonzero(self.vertex_parts == self.part_names.index(name))
 
     @property
     def num_vertices(self) -> int:

@@ -10,7 +10,7 @@ import re
 
 from ..errors import KDInputError
 
-__all__ = ["ARKIT_NAMES", "canonical_name", "alias_key", "match_names"]
+__all__ = ["ARKIT_NAMES", "canonical_name", "alias_key", "match_names", "resolve_channels", "ChannelResolution"]
 
 ARKIT_NAMES: tuple[str, ...] = (
     "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeSquintLeft",
@@ -59,3 +59,67 @@ def match_names(requested, available, *, where: str) -> list[int]:
                                f"shapes (ARKit names or aliases){hint}")
         out.append(table[key])
     return out
+
+
+class ChannelResolution(tuple):
+    """``(pairs, skipped, how)`` from :func:`resolve_channels`: ``pairs`` (M, 2) int of (channel, shape) indices
+    (a channel may drive several shapes), ``skipped`` the channel names that drive nothing, ``how`` a dict channel
+    name → "map" | "name" | "sides" | "dropped" | "skipped" saying how each was resolved."""
+
+    @property
+    def pairs(self):
+        """(M, 2) int array of (channel index, shape index)."""
+        return self[0]
+
+    @property
+    def skipped(self) -> list[str]:
+        """Channel names that drive no shape."""
+        return self[1]
+
+    @property
+    def how(self) -> dict:
+        """Channel name → how it was resolved."""
+        return self[2]
+
+
+_SIDES = (("left", "right"),)
+
+
+def resolve_channels(channels, shape_names, *, channel_map: dict | None = None, where: str = "channels"
+                     ) -> ChannelResolution:
+    """Which rig shapes each animation channel drives.
+
+    In order: an explicit ``channel_map`` entry (channel → a shape name, a list of shape names, or ``""``/None to
+    drop the channel); the shape of the same name (ARKit aliases and case are ignored); the side-split pair of that
+    name (``X_L``/``X_R``, ``XLeft``/``XRight``, any alias spelling) — the channel drives both sides; else the
+    channel is skipped. Names in ``channel_map`` that are not shapes raise :class:`KDInputError` naming ``where``.
+    """
+    import numpy as np
+
+    table = {alias_key(canonical_name(a)): i for i, a in enumerate(shape_names)}
+    cmap = {alias_key(canonical_name(str(k))): v for k, v in (channel_map or {}).items()}
+    pairs, skipped, how = [], [], {}
+    for c, name in enumerate(channels):
+        key = alias_key(canonical_name(str(name)))
+        if key in cmap:
+            target = cmap[key]
+            if target in (None, "", False) or (isinstance(target, list | tuple) and not target):
+                how[name] = "dropped"
+                continue
+            targets = [target] if isinstance(target, str) else list(target)
+            for s in match_names(targets, shape_names, where=f"{where}.map.{name}"):
+                pairs.append((c, s))
+            how[name] = "map"
+        elif key in table:
+            pairs.append((c, table[key]))
+            how[name] = "name"
+        elif all(key + side in table for side in _SIDES[0]):
+            pairs += [(c, table[key + side]) for side in _SIDES[0]]
+            how[name] = "sides"
+        else:
+            skipped.append(str(name))
+            how[name] = "skipped"
+    unknown = set(cmap) - {alias_key(canonical_name(str(n))) for n in channels}
+    if unknown:
+        raise KDInputError(f"{where}.map: channel(s) {sorted(unknown)} are not in the animation")
+    return ChannelResolution((np.asarray(pairs, dtype=np.int64).reshape(-1, 2), skipped, how))

@@ -3,7 +3,7 @@
 Benchmarks and tests need faces the size of production rigs (18k–72k vertices) that still move like the default
 head. :func:`subdivide_rig` builds them from any rig: Loop subdivision (libigl's ``loop_matrix``) ``levels`` times,
 optionally preceded by a conforming midpoint refinement of the most deforming triangles to land on a vertex count
-between two Loop levels (the default head has 4,494 vertices, so Loop gives 17.9k and 71.6k; the 27k-vertex face
+between two Loop levels (the default head has 4,774 vertices, so Loop gives 19.0k and 75.6k; the 27k-vertex face
 of the benchmarks is ``subdivide_rig(rig, target_vertices=27_000)``, dense where the blend shapes move, as a
 production face is).
 
@@ -95,7 +95,7 @@ def _motion_rank(rig: BlendshapeRig) -> np.ndarray:
 
 def subdivide_rig(rig: BlendshapeRig, levels: int = 1, *, target_vertices: int | None = None) -> BlendshapeRig:
     """``rig`` refined to a production-size mesh: ``levels`` Loop subdivisions of every triangle (each about
-    quadruples the vertex count: 4,494 → 17,931 → 71,563 for the default head).
+    quadruples the vertex count: 4,774 → 18,957 → 75,571 for the default head).
 
     ``target_vertices``: first refine the triangles the blend shapes move most (midpoint splits, conforming), as
     many as needed for the Loop-subdivided result to have about this many vertices (within a few vertices; it must
@@ -154,4 +154,10 @@ def subdivide_rig(rig: BlendshapeRig, levels: int = 1, *, target_vertices: int |
         weights = np.clip(S @ skel.weights, 0.0, None)
         weights /= np.maximum(1.0, weights.sum(axis=1, keepdims=True))  # round-off only: rows of S sum to one
         skel = Skeleton(skel.names, skel.positions, skel.parents, weights)
-    return BlendshapeRig.create(neutral, deltas, faces, rig.shape_names, skeleton=skel, name=name)
+    parts = None
+    if rig.vertex_parts is not None:  # a new vertex belongs to the part of its heaviest source vertex
+        heaviest = np.asarray(S.argmax(axis=1)).ravel()
+        parts = rig.vertex_parts[heaviest]
+    return BlendshapeRig.create(neutral, deltas, faces, rig.shape_names, skeleton=skel, name=name,
+                                part_names=rig.part_names if parts is not None else (), vertex_parts=parts,
+                                source_unit_m=rig.source_unit_m)

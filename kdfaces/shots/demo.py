@@ -29,7 +29,8 @@ def demo_face_model(rig, **overrides):
     return dynamics_model(read_shot_table(DEMO_SHOT).get("dynamics", {}), rig, **overrides)
 
 
-def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: bool = True) -> dict:
+def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: bool = True,
+             export_unit_m: float = 1.0, progress: bool = False) -> dict:
     """Run the demo shot and write everything a person looks at; returns summary.json's content.
 
     KD of every frame at the automatic window, the full simulation and the KD-vs-full sweep (Fig. 10 analog), the
@@ -47,7 +48,7 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
 
     out = Path(out)
     shot = load_shot(DEMO_SHOT, rig=rig)
-    run = run_shot(shot, threads=threads)
+    run = run_shot(shot, threads=threads, progress=progress)
     traj, system, h = shot.trajectory, run.system, run.step_s
     full = simulate_full(system, traj, run.times, step_s=h)
     windows = sorted({*DEMO_SWEEP_S, run.window_s})
@@ -60,7 +61,7 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
                              **{**options, "update": u, "step_scale": s})
             for label, (u, s) in variants.items()}
     runs[f"{run.ikd_result.update} (ours)"] = run.ikd_result
-    paths = write_run_outputs(run, out, exports=exports, convergence_runs=runs)
+    paths = write_run_outputs(run, out, exports=exports, convergence_runs=runs, export_unit_m=export_unit_m)
     paths += list(write_kd_report(out, report))
     if offset_grid:
         c = constraints[0]

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..kd import simulate_kd
-from ..viz.figures import filmstrip
+from ..viz.figures import filmstrip, part_colors
 from ..viz.heatmap import heatmap_strip
 from ..viz.markers import constraint_panel
 from ..viz.movie import render_movie
@@ -54,7 +54,7 @@ def _constraint_states(run, constraints, trajectory) -> list[tuple[np.ndarray, n
 
 
 def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: str | None = None,
-                exports=(), progress: bool | None = None) -> dict:
+                exports=(), progress: bool | None = None, export_unit_m: float = 1.0) -> dict:
     """Write the filmstrip, heat map, constraint panel, movie and point caches of ``run`` into folder ``out``.
 
     Args:
@@ -80,8 +80,9 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     t = strip_times(run, count=frames)
     stills = still_states(run, t)
     reference = run.kinematic[0]
+    colors = part_colors(rig)
     outputs = [filmstrip(out / "filmstrip.png", rig.faces, stills, t, reference=reference,
-                         title=f"{shot.name}: {' | '.join(stills)}")]
+                         title=f"{shot.name}: {' | '.join(stills)}", colors=colors)]
     outputs.append(heatmap_strip(out / "heatmap.png", rig.faces, {"KD": stills["KD"]}, stills["kinematic"], t,
                                  title=f"{shot.name}: KD deviation from the kinematic pose"))
     if "IKD" in stills:  # its own colour range: the IKD edit is usually much larger than the follow-through
@@ -100,10 +101,11 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     frame_s = []
     if movie:
         outputs.append(render_movie(out / "movie", rig.faces, rows, times, fps=fps, reference=reference,
-                                    progress=progress, format=movie_format, timings=frame_s))
+                                    progress=progress, format=movie_format, timings=frame_s, colors=colors))
     final = run.ikd if run.ikd is not None else run.kd
     for kind in dict.fromkeys(exports):
-        outputs.append(export_trajectory(out, final, times, kind=kind, faces=rig.faces, fps=fps, name=shot.name))
+        outputs.append(export_trajectory(out, final, times, kind=kind, rig=rig, fps=fps, name=shot.name,
+                                          unit_m=export_unit_m))
     return {
         "shot": shot.name,
         "frames": len(times),
@@ -118,18 +120,18 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
 
 
 def _render_command(args) -> dict:
+    from ..defaults import user_cache_dir
     from ..io.summary import write_summary
     from .run import run_shot
     from .shotfile import load_shot
 
-    shot = load_shot(args.shot)
-    if args.out is None:
-        args.out = str(Path("kd-out") / Path(args.shot).stem)
+    shot = load_shot(args.shot, cache_dir=user_cache_dir())
     t0 = time.perf_counter()
-    run = run_shot(shot, window_s=args.window)
+    run = run_shot(shot, window_s=args.window, progress=True)
     t1 = time.perf_counter()
+    unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
     summary = render_shot(run, args.out, frames=args.frames, movie=not args.no_movie, movie_format=args.movie_format,
-                          exports=args.export)
+                          exports=args.export, export_unit_m=unit, progress=True)
     summary["simulate_s"] = t1 - t0
     summary["render_s"] = time.perf_counter() - t1
     write_summary(args.out, summary)

@@ -15,6 +15,7 @@ from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_kd
+from ..resources import format_bytes, memory_budget_bytes, progress_bar
 from .shotfile import Shot, load_shot
 
 __all__ = ["ShotRun", "run_shot", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
@@ -62,10 +63,13 @@ class ShotRun:
 
 @renamed_kwargs(window="window_s", damping="step_scale")
 def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
-             threads: int = 2, update: str | None = None, step_scale: float | None = None) -> ShotRun:
+             threads: int = 2, update: str | None = None, step_scale: float | None = None,
+             max_memory_bytes: int | None = None, progress: bool = False) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
 
-    ``window_s`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``step_scale`` override the solver's.
+    ``window_s`` [s] overrides the shot's ``dynamics.window_s``; ``update``/``step_scale`` override the solver's;
+    ``max_memory_bytes`` bounds each KD batch (default half the available memory); ``progress`` shows bars for the
+    stages that take longer than two seconds.
     """
     window = window_s
     from ..dynamics import FaceSystem
@@ -85,9 +89,16 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     if not (window > 0):
         raise KDInputError(f"window: expected positive seconds, got {window}")
     times = shot.animation.frame_times
+    need = 4 * len(times) * model.num_vertices * 3 * 8  # x_K, x_KD, x_IKD of every frame, and one working copy
+    budget = memory_budget_bytes(max_memory_bytes)
+    if need > budget:
+        raise KDInputError(f"{shot.path}: {len(times):,} frames of {model.num_vertices:,} vertices need "
+                           f"{format_bytes(need)} for the kinematic, KD and IKD trajectories; expected at most the "
+                           f"budget of {format_bytes(budget)} (check animation.fps and the shot's length, bake long "
+                           "takes with the chunked bake, or raise --max-memory)")
     kinematic = traj.positions(times)
     t0 = _time.perf_counter()
-    kd = simulate_kd(system, traj, times, window, step_s=h)
+    kd = simulate_kd(system, traj, times, window, step_s=h, max_memory_bytes=max_memory_bytes, progress=progress)
     ms = 1e3 * (_time.perf_counter() - t0) / len(times)
     result = ikd = check = None
     constraints = shot.constraints()
@@ -97,8 +108,11 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
             s["update"] = update
         if step_scale is not None:
             s["step_scale"] = step_scale
-        result = solve_ikd(system, traj, constraints, window_s=window, step_s=h, **s)
-        ikd = simulate_kd(system, result.trajectory, times, window, step_s=h)
+        with progress_bar("IKD sweeps", s["max_iterations"], progress) as bar:
+            result = solve_ikd(system, traj, constraints, window_s=window, step_s=h,
+                               callback=lambda it, err: bar.update(1), **s)
+        ikd = simulate_kd(system, result.trajectory, times, window, step_s=h, max_memory_bytes=max_memory_bytes,
+                          progress=progress)
         check = independent_check(system, result, window_s=window, step_s=h)
     return ShotRun(shot=shot, system=system, times=times, kinematic=kinematic, kd=kd, ikd=ikd, ikd_result=result,
                    check_errors=check, window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m,
@@ -139,14 +153,16 @@ def strip_times(run: ShotRun, count: int = 6) -> np.ndarray:
     return np.array(sorted(t))
 
 
-def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict | None = None) -> list[Path]:
+def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict | None = None,
+                      export_unit_m: float = 1.0) -> list[Path]:
     """Filmstrip (kinematic | KD | IKD), convergence plot, point caches of the final trajectory.
 
     ``convergence_runs`` maps a label to an :class:`IKDResult` to compare in the convergence plot (default: the
-    run's own solve). Returns the written paths.
+    run's own solve). Point caches are written in units of ``export_unit_m`` metres (1: metres). Returns the
+    written paths.
     """
     from ..io.export import export_trajectory
-    from ..viz.figures import filmstrip
+    from ..viz.figures import filmstrip, part_colors
     from ..viz.ikd_report import convergence_plot
 
     out = Path(out)
@@ -157,24 +173,28 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
     rows = {"kinematic": traj.positions(t), "KD": simulate_kd(run.system, traj, t, run.window_s, step_s=run.step_s)}
     if run.ikd_result is not None:
         rows["IKD"] = simulate_kd(run.system, run.ikd_result.trajectory, t, run.window_s, step_s=run.step_s)
-    paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}")]
+    paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}",
+                       colors=part_colors(rig))]
     if run.ikd_result is not None:
         runs = convergence_runs or {run.ikd_result.update: run.ikd_result}
         paths.append(convergence_plot(out / "ikd_convergence.png", runs, tolerance_m=run.shot.solver["tolerance_m"]))
     for kind in exports:
-        paths.append(export_trajectory(out, run.final, run.times, kind=kind, faces=rig.faces,
-                                       fps=run.shot.animation.fps, name=run.shot.name))
+        paths.append(export_trajectory(out, run.final, run.times, kind=kind, rig=rig, fps=run.shot.animation.fps,
+                                       name=run.shot.name, unit_m=export_unit_m))
     return paths
 
 
 def _run_command(args) -> dict:
+    from ..defaults import user_cache_dir
     from ..io.summary import write_summary
+    from ..resources import parse_bytes
 
-    run = run_shot(args.shot, window_s=args.window)
-    if args.out is None:
-        args.out = str(Path("kd-out") / Path(args.shot).stem)
+    budget = None if args.max_memory is None else parse_bytes(args.max_memory)
+    shot = load_shot(args.shot, cache_dir=user_cache_dir())
+    run = run_shot(shot, window_s=args.window, max_memory_bytes=budget, progress=True)
     out = Path(args.out)
-    paths = write_run_outputs(run, out, exports=args.export)
+    unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
+    paths = write_run_outputs(run, out, exports=args.export, export_unit_m=unit)
     summary = run_summary(run, out, paths)
     write_summary(out, summary)
     return summary
@@ -183,21 +203,33 @@ def _run_command(args) -> dict:
 def run_summary(run: ShotRun, out, paths) -> dict:
     """summary.json of a run: rig, timing, KD window and deviation, IKD, outputs (paths relative to ``out``)."""
     rig, anim = run.shot.rig, run.shot.animation
+    dev = np.linalg.norm(run.kd - run.kinematic, axis=-1).max(axis=0)  # (N,) [m]
+    traj = run.shot.trajectory
     summary = {
         "shot": run.shot.name,
-        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes},
+        "rig": {"name": rig.name, "vertices": rig.num_vertices, "shapes": rig.num_shapes,
+                "source_unit_m": rig.source_unit_m, "extent_m": float(np.ptp(rig.neutral, axis=0).max()),
+                "parts": list(rig.part_names), "rigid_vertices": int(run.system.model.rigid_mask.sum())},
         "fps": anim.fps,
         "frames": len(run.times),
         "duration_s": anim.duration,
+        "step_s": run.step_s,
+        "channels": {"skipped": list(getattr(traj, "skipped_channels", ())),
+                     "split_to_sides": sorted(k for k, v in getattr(traj, "channel_resolution", {}).items()
+                                              if v == "sides")},
         "kd": {
             "window_s": run.window_s,
             "window_auto_s": run.window_auto_s,
             "epsilon_m": run.epsilon_m,
             "ms_per_state": run.ms_per_state,
-            "max_deviation_from_kinematic_m": float(np.linalg.norm(run.kd - run.kinematic, axis=-1).max()),
+            "max_deviation_from_kinematic_m": float(dev.max()),
         },
         "outputs": [str(Path(p).relative_to(out)) for p in paths],
     }
+    if rig.vertex_parts is not None:
+        summary["kd"]["max_deviation_by_part_m"] = {
+            name: float(dev[rig.vertex_parts == k].max()) for k, name in enumerate(rig.part_names)
+            if (rig.vertex_parts == k).any()}
     if run.ikd_result is not None:
         summary["ikd"] = ikd_summary(run)
     return summary
@@ -211,6 +243,8 @@ def add_run_parser(subparsers) -> None:
     p.add_argument("shot", help="TOML shot file")
     p.add_argument("--out", default=None, help="output folder (default kd-out/<shot name>)")
     p.add_argument("--window", type=float, default=None, help="KD window [s] (overrides the shot's)")
+    p.add_argument("--max-memory", default=None, metavar="SIZE",
+                   help="memory budget of a KD batch, e.g. 4G (default: half the available memory)")
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_export_option(p)
     p.set_defaults(func=_run_command)

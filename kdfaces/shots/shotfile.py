@@ -5,6 +5,7 @@ name = "smile-on-the-beat"
 
 [rig]
 source = "default"                 # or an .npz / glTF / OBJ folder / MakeHuman folder
+units = "cm"                       # the file's unit: "m" (default), "dm", "cm", "mm"; or scale = 0.01 (m per unit)
 
 [animation]
 source = "demo"                    # "demo", "keys", or a Live Link Face CSV path
@@ -12,6 +13,10 @@ fps = 25                           # optional; start_s / end_s crop a capture
 # with source = "keys":  end_s = 3.0  and
 # [[animation.tracks]]  shapes = ["mouthSmileLeft"], times_s = [0, 1], values = [[0], [1]], interpolation = "ease"
 # [animation.head]      times_s = [...], yaw_deg = [...], pitch_deg = [...], roll_deg = [...]
+strict = false                     # a capture channel the rig lacks is skipped with a warning (true: an error)
+[animation.map]                    # capture channel → the rig's shape(s); false drops the channel
+# browInnerUp = ["browInnerUp_L", "browInnerUp_R"]   (side-split shapes are found by themselves)
+# tongueOut = false
 
 [dynamics]
 settle_time_s = 0.25               # or { stiff_s = 0.12, loose_s = 0.4 } (per-vertex map: loose cheeks and lips)
@@ -20,6 +25,10 @@ shape_matching_alpha = 0.2
 damping_mode = "relative"          # or "absolute" (the paper's −K_d·ẋ)
 window_s = "auto"                  # or seconds
 step_s = "frame"                   # the animation's frame interval (default), or seconds
+auto_rigid = true                  # pieces no shape deforms (teeth, eyeballs) follow x_K exactly
+[dynamics.parts]                   # by part (OBJ group / glTF primitive), vertex group, or "piece:<k>"
+# teeth = { rigid = true }
+# lips = { settle_time_s = 0.5 }
 
 [[constraints]]
 time_s = 2.4
@@ -46,12 +55,12 @@ Paths inside a shot file are relative to the file. Every error names the file an
 from __future__ import annotations
 
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .. import defaults
 from ..deprecation import warn_renamed
 from ..errors import KDInputError
 from ..ikd.bases import make_basis
@@ -62,63 +71,49 @@ from ..ikd.constraints import (
     subset_constraint,
     velocity_constraint,
 )
-from ..ikd.solver import UPDATES, build_correction
+from ..ikd.solver import build_correction
 from ..io.rigfiles import read_obj
 from ..motion.curves import KeyframeCurve
 from ..motion.joints import JointDrive, SkeletonAnimation
 from ..motion.trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
 from ..rig.groups import vertex_group
+from ..rig.parts import part_vertices, rigid_pieces
 from ..rig.poses import kinematic_pose
+from .schema import RENAMED_KEYS, ShotFile, validate_shot
 
 __all__ = ["Shot", "load_shot", "parse_shot", "read_shot_table", "dynamics_model", "settle_time", "DYNAMICS_DEFAULTS",
            "SOLVER_DEFAULTS"]
 
-DYNAMICS_DEFAULTS = {"settle_time_s": defaults.SETTLE_TIME_S, "damping_ratio": defaults.DAMPING_RATIO,
-                     "shape_matching_alpha": defaults.SHAPE_MATCHING_ALPHA, "damping_mode": defaults.DAMPING_MODE,
-                     "window_s": defaults.WINDOW_S, "step_s": "frame",
-                     "areal_density_kg_m2": defaults.AREAL_DENSITY_KG_M2}
-SOLVER_DEFAULTS = {"update": defaults.SOLVER_UPDATE, "step_scale": defaults.STEP_SCALE,
-                   "tolerance_m": defaults.TOLERANCE_M, "tolerance_mps": defaults.TOLERANCE_MPS,
-                   "max_iterations": defaults.MAX_ITERATIONS, "max_correction_m": defaults.MAX_CORRECTION_M,
-                   "snap_to_frames": False}
-#: Keys renamed in shot files: the old spelling still works for one release, with a DeprecationWarning.
-RENAMED_KEYS = {"dynamics": {"damping": "damping_mode"}, "solver": {"damping": "step_scale"}}
-_CONSTRAINT_KEYS = {"time_s", "kind", "target", "group", "width_s", "curve", "ease_out_s", "label"}
+DYNAMICS_DEFAULTS = ShotFile().dynamics.model_dump()
+SOLVER_DEFAULTS = ShotFile().solver.model_dump()
 
 
-def _renamed(table: dict, section: str, where: str) -> dict:
-    out = dict(table)
-    for old, new in RENAMED_KEYS.get(section, {}).items():
-        if old in out:
-            if new in out:
-                raise KDInputError(f"{where}: both '{old}' (its old name) and '{new}' are set; keep '{new}'")
-            warn_renamed(where, old, new, stacklevel=4)
-            out[new] = out.pop(old)
+def _renamed(data: dict, where: str) -> dict:
+    """``data`` with the old spellings of renamed keys replaced (each with a DeprecationWarning)."""
+    out = dict(data)
+    for section, names in RENAMED_KEYS.items():
+        table = out.get(section)
+        if not isinstance(table, dict):
+            continue
+        table = dict(table)
+        for old, new in names.items():
+            if old in table:
+                if new in table:
+                    raise KDInputError(f"{where}: {section}: both '{old}' (its old name) and '{new}' are set; keep "
+                                       f"'{new}'")
+                warn_renamed(f"{where}: {section}", old, new, stacklevel=4)
+                table[new] = table.pop(old)
+        out[section] = table
     return out
-_TARGET_KEYS = {"weights", "head_deg", "obj", "offset_m", "velocity_mps", "point_m"}
-
-
-def _keys(table: dict, allowed: set, where: str) -> None:
-    extra = set(table) - allowed
-    if extra:
-        raise KDInputError(f"{where}: unknown key(s) {sorted(extra)}; expected some of {sorted(allowed)}")
-
-
-def _number(table: dict, key: str, where: str, *, positive: bool = False) -> float:
-    v = table[key]
-    if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
-        raise KDInputError(f"{where}.{key}: expected a number, got {v!r}")
-    if positive and v <= 0:
-        raise KDInputError(f"{where}.{key}: expected a positive number, got {v!r}")
-    return float(v)
 
 
 @dataclass
 class Shot:
     """A parsed shot: everything needed to simulate KD and solve IKD.
 
-    ``dynamics`` and ``solver`` hold the settings with defaults filled in; ``constraint_tables`` the raw
-    ``[[constraints]]`` tables (build the constraints with :meth:`constraints`).
+    ``dynamics`` and ``solver`` hold the settings with defaults filled in (plain dicts); ``constraint_tables`` the
+    validated ``[[constraints]]`` tables (build the constraints with :meth:`constraints`); ``channel_map`` and
+    ``strict_channels`` say how the animation's channels map onto the rig's shapes.
     """
 
     path: Path
@@ -128,12 +123,15 @@ class Shot:
     dynamics: dict
     solver: dict
     constraint_tables: list[dict] = field(default_factory=list)
+    channel_map: dict = field(default_factory=dict)
+    strict_channels: bool | None = None
 
     @property
     def trajectory(self) -> KinematicTrajectory:
         """The kinematic trajectory x_K of the shot's rig under its animation (built once)."""
         if not hasattr(self, "_trajectory"):
-            self._trajectory = KinematicTrajectory(self.rig, self.animation)
+            self._trajectory = KinematicTrajectory(self.rig, self.animation, channel_map=self.channel_map,
+                                                   strict=self.strict_channels)
         return self._trajectory
 
     @property
@@ -149,12 +147,17 @@ class Shot:
         return self.step_s
 
     def settle_time(self):
-        """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section."""
-        return settle_time(self.dynamics, self.rig)
+        """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section (parts included)."""
+        return settle_time(self.dynamics, self.rig, where=f"{self.path}: dynamics")
+
+    def rigid(self) -> np.ndarray:
+        """(N,) bool: vertices that follow x_K exactly (``[dynamics.parts]`` rigid parts and, with ``auto_rigid``,
+        the pieces no shape deforms)."""
+        return rigid_vertices(self.dynamics, self.rig, where=f"{self.path}: dynamics")
 
     def model(self, **overrides):
         """The face dynamics model of the shot's ``[dynamics]`` (keyword overrides for FaceModel.create)."""
-        return dynamics_model(self.dynamics, self.rig, **overrides)
+        return dynamics_model(self.dynamics, self.rig, where=f"{self.path}: dynamics", **overrides)
 
     def constraints(self, trajectory=None) -> list[Constraint]:
         """The shot's constraints, targets resolved against ``trajectory`` (default the kinematic trajectory)."""
@@ -173,117 +176,137 @@ class Shot:
 
     def _constraint(self, c: dict, i: int, traj) -> Constraint:
         where = f"{self.path}: constraints[{i}]"
-        _keys(c, _CONSTRAINT_KEYS, where)
-        for key in ("time_s", "kind"):
-            if key not in c:
-                raise KDInputError(f"{where}: missing '{key}'")
-        t = _number(c, "time_s", where)
+        t = float(c["time_s"])
         a = self.animation
         if not (a.start <= t <= a.end):
             raise KDInputError(f"{where}.time_s: {t} s is outside the shot [{a.start}, {a.end}] s")
         kind = c["kind"]
-        width = _number(c, "width_s", where, positive=True) if "width_s" in c else defaults.WIDTH_S
-        ease_out = _number(c, "ease_out_s", where, positive=True) if "ease_out_s" in c else None
-        basis = make_basis(c.get("curve", defaults.CURVE), t, width_s=width, ease_out_s=ease_out)
-        label = str(c.get("label", f"{kind}@{t:g}s"))
+        basis = make_basis(c["curve"], t, width_s=c["width_s"], ease_out_s=c["ease_out_s"])
+        label = c["label"] if c["label"] is not None else f"{kind}@{t:g}s"
         n = self.rig.num_vertices
-        target = c.get("target", "kinematic")
-        if target != "kinematic" and not isinstance(target, dict):
-            raise KDInputError(f"{where}.target: expected \"kinematic\" or a table, got {target!r}")
-        tt = target if isinstance(target, dict) else {}
-        _keys(tt, _TARGET_KEYS, f"{where}.target")
-        group = vertex_group(self.rig, c["group"], where=f"{where}.group") if "group" in c else None
+        tt = c["target"] if isinstance(c["target"], dict) else {}
+        group = vertex_group(self.rig, c["group"], where=f"{where}.group") if c["group"] is not None else None
         if kind in ("pose", "subset", "end_effector"):
-            if "obj" in tt:
-                pose, _ = read_obj(self.path.parent / tt["obj"])
+            if tt.get("obj") is not None:
+                try:
+                    pose, _ = read_obj(self.path.parent / tt["obj"], scale=self.rig.source_unit_m)
+                except KDInputError as e:
+                    raise KDInputError(f"{where}.target.obj: {e}") from None
                 if pose.shape != (n, 3):
                     raise KDInputError(f"{where}.target.obj: {len(pose)} vertices, rig has {n}")
             else:
                 pose = kinematic_pose(traj, t, weights=tt.get("weights"), head_deg=tt.get("head_deg"),
                                       where=f"{where}.target")
-            if "offset_m" in tt:
+            if tt.get("offset_m") is not None:
                 pose = pose + np.asarray(tt["offset_m"], dtype=np.float64)
         if kind == "pose":
-            return pose_constraint(t, pose, basis, num_vertices=n, label=label)
+            return self._indexed(pose_constraint(t, pose, basis, num_vertices=n, label=label), i)
         if kind == "subset":
             if group is None:
                 raise KDInputError(f"{where}: a subset constraint needs 'group'")
-            return subset_constraint(t, pose, group, basis, num_vertices=n, label=label)
+            return self._indexed(subset_constraint(t, pose, group, basis, num_vertices=n, label=label), i)
         if kind == "end_effector":
             if group is None:
                 raise KDInputError(f"{where}: an end_effector constraint needs 'group' (its vertices)")
-            point = np.asarray(tt["point_m"], dtype=np.float64) if "point_m" in tt else pose[group].mean(axis=0)
-            return end_effector_constraint(t, point, group, basis, num_vertices=n, label=label)
-        if kind == "velocity":
-            if "velocity_mps" in tt:
-                v = np.asarray(tt["velocity_mps"], dtype=np.float64)
-            else:  # the kinematic velocity of the group: the KD motion passes through t with the animator's speed
-                v = traj.evaluate([t], 1)[1][0][group if group is not None else slice(None)]
-            return velocity_constraint(t, v, basis, group=group, num_vertices=n, label=label)
-        raise KDInputError(f"{where}.kind: {kind!r} unknown; expected pose, subset, velocity or end_effector")
+            point = np.asarray(tt["point_m"], dtype=np.float64) if tt.get("point_m") is not None \
+                else pose[group].mean(axis=0)
+            return self._indexed(end_effector_constraint(t, point, group, basis, num_vertices=n, label=label), i)
+        if tt.get("velocity_mps") is not None:
+            v = np.asarray(tt["velocity_mps"], dtype=np.float64)
+        else:  # the kinematic velocity of the group: the KD motion passes through t with the animator's speed
+            v = traj.evaluate([t], 1)[1][0][group if group is not None else slice(None)]
+        return self._indexed(velocity_constraint(t, v, basis, group=group, num_vertices=n, label=label), i)
+
+    @staticmethod
+    def _indexed(c: Constraint, i: int) -> Constraint:
+        import dataclasses
+
+        return dataclasses.replace(c, index=i)
 
 
-def settle_time(dynamics: dict, rig):
-    """The settle time of a ``[dynamics]`` table: seconds, or the per-vertex (N,) soft-tissue map on ``rig``."""
+def settle_time(dynamics: dict, rig, *, where: str = "dynamics"):
+    """The settle time [s] of a ``[dynamics]`` table: a number, or a per-vertex (N,) map (the soft-tissue map, and
+    parts with their own ``settle_time_s``)."""
+    from ..dynamics.gains import soft_tissue_settle_map
+
     st = dynamics["settle_time_s"]
-    if isinstance(st, dict):
-        from ..dynamics.gains import soft_tissue_settle_map
+    base = soft_tissue_settle_map(rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"]) if isinstance(st, dict) \
+        else float(st)
+    own = {name: p for name, p in (dynamics.get("parts") or {}).items() if p.get("settle_time_s") is not None}
+    if not own:
+        return base
+    out = np.broadcast_to(np.asarray(base, dtype=np.float64), (rig.num_vertices,)).copy()
+    for name, p in own.items():
+        out[part_vertices(rig, name, where=f"{where}.parts.{name}")] = float(p["settle_time_s"])
+    return out
 
-        return soft_tissue_settle_map(rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"])
-    return float(st)
+
+def rigid_vertices(dynamics: dict, rig, *, where: str = "dynamics") -> np.ndarray:
+    """(N,) bool: the ``[dynamics]`` table's rigid vertices (see :meth:`Shot.rigid`)."""
+    mask = rigid_pieces(rig) if dynamics.get("auto_rigid", True) else np.zeros(rig.num_vertices, dtype=bool)
+    for name, p in (dynamics.get("parts") or {}).items():
+        if p.get("rigid") is not None:
+            mask[part_vertices(rig, name, where=f"{where}.parts.{name}")] = bool(p["rigid"])
+    return mask
 
 
-def dynamics_model(dynamics: dict, rig, **overrides):
+def dynamics_model(dynamics: dict, rig, *, where: str = "dynamics", **overrides):
     """A :class:`~kdfaces.dynamics.FaceModel` on ``rig`` from a ``[dynamics]`` table (defaults filled in)."""
     from ..dynamics import FaceModel
 
     d = {**DYNAMICS_DEFAULTS, **dynamics}
-    kwargs = dict(settle_time_s=settle_time(d, rig), damping_ratio=float(d["damping_ratio"]),
+    rigid = rigid_vertices(d, rig, where=where)
+    kwargs = dict(settle_time_s=settle_time(d, rig, where=where), damping_ratio=float(d["damping_ratio"]),
                   shape_matching_alpha=float(d["shape_matching_alpha"]), damping_mode=d["damping_mode"],
-                  areal_density_kg_m2=float(d["areal_density_kg_m2"]))
+                  areal_density_kg_m2=float(d["areal_density_kg_m2"]), rigid=rigid if rigid.any() else None)
     kwargs.update(overrides)
     return FaceModel.from_rig(rig, **kwargs)
 
 
-def _animation(table: dict, base: Path, where: str, rig) -> FaceAnimation:
+def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
     from ..io.livelinkface import livelinkface_animation
     from .builtin import demo_animation
 
-    _keys(table, {"source", "fps", "start_s", "end_s", "tracks", "head"}, where)
-    source = table.get("source", "demo")
-    fps = _number(table, "fps", where, positive=True) if "fps" in table else None
-    if source == "demo":
+    if a.source == "demo":
         anim = demo_animation()
-        if fps:
-            anim = FaceAnimation(anim.tracks, anim.skeleton, anim.start, anim.end, fps, anim.name)
-        return anim
-    if source == "keys":
+        start = anim.start if a.start_s is None else a.start_s
+        end = anim.end if a.end_s is None else a.end_s
+        if not anim.start <= start < end <= anim.end:
+            raise KDInputError(f"{where}: start_s, end_s: the demo animation runs [{anim.start:g}, {anim.end:g}] s; "
+                               f"got [{start:g}, {end:g}]")
+        return FaceAnimation(anim.tracks, anim.skeleton, start, end, a.fps or anim.fps, anim.name)
+    if a.source == "keys":
         tracks = []
-        for i, tr in enumerate(table.get("tracks", [])):
+        for i, tr in enumerate(a.tracks):
             w = f"{where}.tracks[{i}]"
-            _keys(tr, {"shapes", "times_s", "values", "interpolation"}, w)
-            rig.shape_indices(list(tr["shapes"]), where=f"{w}.shapes")
-            tracks.append(ShapeTrack(tuple(tr["shapes"]), _curve(tr["times_s"], tr["values"],
-                                                                 tr.get("interpolation", "ease"), w)))
+            rig.shape_indices(list(tr.shapes), where=f"{w}.shapes")
+            if len(tr.values) != len(tr.times_s) or any(len(row) != len(tr.shapes) for row in tr.values):
+                raise KDInputError(f"{w}.values: expected {len(tr.times_s)} rows (one per key in times_s) of "
+                                   f"{len(tr.shapes)} numbers (one per shape)")
+            tracks.append(ShapeTrack(tuple(tr.shapes), _curve(tr.times_s, tr.values, tr.interpolation, w)))
         drives = ()
-        if "head" in table:
-            hd, w = table["head"], f"{where}.head"
-            _keys(hd, {"times_s", "yaw_deg", "pitch_deg", "roll_deg", "interpolation"}, w)
-            n = len(hd["times_s"])
-            ang = np.radians(np.stack([np.asarray(hd.get(k, [0.0] * n), dtype=np.float64)
-                                       for k in ("yaw_deg", "pitch_deg", "roll_deg")], axis=1))
-            drives = (JointDrive(_curve(hd["times_s"], ang, hd.get("interpolation", "ease"), w)),)
-        if "end_s" not in table:
+        if a.head is not None:
+            hd, w = a.head, f"{where}.head"
+            n = len(hd.times_s)
+            cols = []
+            for key in ("yaw_deg", "pitch_deg", "roll_deg"):
+                vals = getattr(hd, key)
+                if vals is not None and len(vals) != n:
+                    raise KDInputError(f"{w}.{key}: expected {n} angles (one per key in times_s), got {len(vals)}")
+                cols.append(np.zeros(n) if vals is None else np.asarray(vals, dtype=np.float64))
+            drives = (JointDrive(_curve(hd.times_s, np.radians(np.stack(cols, axis=1)), hd.interpolation, w)),)
+        if a.end_s is None:
             raise KDInputError(f"{where}: keyed animations need 'end_s'")
-        return FaceAnimation(tuple(tracks), SkeletonAnimation(drives), float(table.get("start_s", 0.0)),
-                             _number(table, "end_s", where), fps or 25.0, name="keys")
-    path = base / source
-    kwargs = {"fps": fps}
-    if "start_s" in table:
-        kwargs["start"] = _number(table, "start_s", where)
-    if "end_s" in table:
-        kwargs["end"] = _number(table, "end_s", where)
-    return livelinkface_animation(path, **kwargs)
+        start = 0.0 if a.start_s is None else a.start_s
+        if not a.end_s > start:
+            raise KDInputError(f"{where}.end_s: expected end_s > start_s ({start:g} s), got {a.end_s:g}")
+        return FaceAnimation(tuple(tracks), SkeletonAnimation(drives), start, a.end_s, a.fps or 25.0, name="keys")
+    kwargs = {"fps": a.fps}
+    if a.start_s is not None:
+        kwargs["start"] = a.start_s
+    if a.end_s is not None:
+        kwargs["end"] = a.end_s
+    return livelinkface_animation(base / a.source, **kwargs)
 
 
 def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
@@ -293,50 +316,51 @@ def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
     return KeyframeCurve.create(times, v, interpolation=interpolation, where=where)
 
 
-def parse_shot(data: dict, path: Path, *, rig=None) -> Shot:
+def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cache_dir=None) -> Shot:
     """A :class:`Shot` from parsed TOML ``data``; ``path`` names the file in errors and anchors relative paths.
 
-    ``rig`` (a path or "default") replaces the file's ``[rig] source``.
+    ``rig`` (a path, "default", or a loaded :class:`~kdfaces.rig.BlendshapeRig`) replaces the file's
+    ``[rig] source``; ``rig_units`` its ``units``. ``cache_dir`` keeps parsed OBJ-folder rigs by content hash.
     """
     from ..io.rigfiles import load_rig
+    from ..rig.blendshapes import BlendshapeRig
 
     path = Path(path)
     where = str(path)
-    _keys(data, {"name", "rig", "animation", "dynamics", "constraints", "solver"}, where)
-    rig_table = data.get("rig", {})
-    _keys(rig_table, {"source"}, f"{where}: rig")
-    src = rig_table.get("source", "default") if rig is None else str(rig)
-    rig = load_rig(src if src == "default" or rig is not None else path.parent / src)
-    anim = _animation(data.get("animation", {}), path.parent, f"{where}: animation", rig)
-    dyn = dict(DYNAMICS_DEFAULTS)
-    dyn_table = _renamed(data.get("dynamics", {}), "dynamics", f"{where}: dynamics")
-    _keys(dyn_table, set(DYNAMICS_DEFAULTS), f"{where}: dynamics")
-    dyn.update(dyn_table)
-    w = dyn["window_s"]
-    if w != "auto" and (isinstance(w, bool) or not isinstance(w, int | float) or not w > 0):
-        raise KDInputError(f"{where}: dynamics.window_s: expected \"auto\" or positive seconds, got {w!r}")
-    for key in ("damping_ratio", "areal_density_kg_m2"):
-        _number(dyn, key, f"{where}: dynamics", positive=True)
-    if dyn["step_s"] != "frame":
-        _number(dyn, "step_s", f"{where}: dynamics", positive=True)
-    st = dyn["settle_time_s"]
-    if isinstance(st, dict):
-        _keys(st, {"stiff_s", "loose_s"}, f"{where}: dynamics.settle_time_s")
-        for key in ("stiff_s", "loose_s"):
-            _number(st, key, f"{where}: dynamics.settle_time_s", positive=True)
+    if not isinstance(data, dict):
+        raise KDInputError(f"{where}: expected TOML tables")
+    f = validate_shot(_renamed(data, where), path)
+    if isinstance(rig, BlendshapeRig):
+        rig_obj = rig
     else:
-        _number(dyn, "settle_time_s", f"{where}: dynamics", positive=True)
-    solver = dict(SOLVER_DEFAULTS)
-    solver_table = _renamed(data.get("solver", {}), "solver", f"{where}: solver")
-    _keys(solver_table, set(SOLVER_DEFAULTS), f"{where}: solver")
-    solver.update(solver_table)
-    if solver["update"] not in UPDATES:
-        raise KDInputError(f"{where}: solver.update: expected one of {UPDATES}, got {solver['update']!r}")
-    constraints = data.get("constraints", [])
-    if not isinstance(constraints, list):
-        raise KDInputError(f"{where}: constraints: expected an array of tables ([[constraints]])")
-    shot = Shot(path=path, name=str(data.get("name", path.stem)), rig=rig, animation=anim, dynamics=dyn,
-                solver=solver, constraint_tables=constraints)
+        src = f.rig.source if rig is None else str(rig)
+        units = rig_units if rig_units is not None else (f.rig.units if rig is None else None)
+        scale = f.rig.scale if rig is None and rig_units is None else None
+        rig_path = src if src == "default" or rig is not None else path.parent / src
+        try:
+            rig_obj = load_rig(rig_path, units=units, scale=scale, cache_dir=cache_dir)
+        except KDInputError as e:
+            raise KDInputError(f"{where}: rig.source: {e}") from None
+    try:
+        anim = _animation(f.animation, path.parent, f"{where}: animation", rig_obj)
+    except KDInputError as e:
+        if str(e).startswith(where):
+            raise
+        raise KDInputError(f"{where}: animation.source: {e}") from None
+    dyn = f.dynamics.model_dump()
+    dyn["parts"] = {k: v.model_dump() for k, v in f.dynamics.parts.items()}
+    strict = True if anim.strict_channels else f.animation.strict
+    step = f.dynamics.step_s
+    if step != "frame" and step > anim.duration:
+        raise KDInputError(f"{where}: dynamics.step_s: {step:g} s is longer than the shot ({anim.duration:g} s); "
+                           "expected a step of at most the frame interval")
+    if step != "frame" and step > 1.0 / anim.fps * (1 + 1e-9):
+        warnings.warn(f"{where}: dynamics.step_s = {step:g} s is longer than the frame interval "
+                      f"{1.0 / anim.fps:g} s: frames between steps are reached by partial steps", stacklevel=3)
+    shot = Shot(path=path, name=f.name or path.stem, rig=rig_obj, animation=anim, dynamics=dyn,
+                solver=f.solver.model_dump(), constraint_tables=[c.model_dump() for c in f.constraints],
+                channel_map=dict(f.animation.map), strict_channels=strict)
+    shot.settle_time()  # part names are checked now, not at the first simulation
     shot.constraints()  # validate targets, groups, widths, times and same-time conflicts up front
     return shot
 
@@ -346,12 +370,22 @@ def read_shot_table(path) -> dict:
     p = Path(path)
     if not p.exists():
         raise KDInputError(f"{p}: file not found")
+    if p.is_dir():
+        raise KDInputError(f"{p}: expected a TOML shot file, got a folder")
     try:
-        return tomllib.loads(p.read_text())
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise KDInputError(f"{p}: not a UTF-8 text file (byte {e.start}); expected a TOML shot file") from None
+    except OSError as e:
+        raise KDInputError(f"{p}: cannot read ({e.strerror})") from None
+    if "\x00" in text:
+        raise KDInputError(f"{p}: a binary file, not a TOML shot file")
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise KDInputError(f"{p}: not valid TOML ({e})") from None
 
 
-def load_shot(path, *, rig=None) -> Shot:
-    """Read and validate a TOML shot file (``rig`` replaces its ``[rig] source``)."""
-    return parse_shot(read_shot_table(path), Path(path), rig=rig)
+def load_shot(path, *, rig=None, rig_units: str | None = None, cache_dir=None) -> Shot:
+    """Read and validate a TOML shot file (``rig`` and ``rig_units`` replace its ``[rig]`` source and units)."""
+    return parse_shot(read_shot_table(path), Path(path), rig=rig, rig_units=rig_units, cache_dir=cache_dir)

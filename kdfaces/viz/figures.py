@@ -15,7 +15,8 @@ import numpy as np
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 
-__all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "subplots", "check_positions"]
+__all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "subplots", "check_positions",
+           "part_colors"]
 
 #: The skin colour of plain renders.
 SKIN = "#d9a58a"
@@ -41,6 +42,26 @@ class Markers:
     size_px: float = 9.0
 
 
+#: Colours of parts by what their name says (the first match wins); other parts get the skin colour.
+PART_COLORS = (("eye", "#f4f3ee"), ("teeth", "#efe6c8"), ("tooth", "#efe6c8"), ("gum", "#c9636b"),
+               ("tongue", "#c4565e"), ("lash", "#3a2a22"), ("brow", "#4a3a30"))
+
+
+def part_colors(rig) -> np.ndarray | None:
+    """Per-vertex RGB colours (N, 3) in [0, 1] by the rig's parts (eyes white, teeth ivory, ...), or None when the
+    rig has no parts (the renderer then uses one skin colour)."""
+    from matplotlib.colors import to_rgb
+
+    if rig.vertex_parts is None or not rig.part_names:
+        return None
+    table = []
+    for name in rig.part_names:
+        low = name.lower()
+        table.append(to_rgb(next((c for key, c in PART_COLORS if key in low), SKIN)))
+    table.append(to_rgb(SKIN))  # vertices in no part
+    return np.asarray(table)[rig.vertex_parts]
+
+
 class FaceRenderer:
     """Renders one triangle mesh at many vertex positions from a fixed camera.
 
@@ -50,10 +71,11 @@ class FaceRenderer:
         size: image (width, height) in pixels.
         color: skin colour of plain renders.
         view: direction from the face centre towards the camera (the face looks +z, y is up).
+        colors: per-vertex RGB colours (N, 3) in [0, 1] of plain renders (e.g. :func:`part_colors`), or None.
     """
 
     def __init__(self, faces: np.ndarray, reference: np.ndarray, *, size=(360, 420), color=SKIN,
-                 view=(0.35, 0.15, 1.0)):
+                 view=(0.35, 0.15, 1.0), colors: np.ndarray | None = None):
         import pyvista as pv
 
         pv.OFF_SCREEN = True
@@ -70,6 +92,13 @@ class FaceRenderer:
         self.color = color
         self.mesh = pv.PolyData(ref.copy(), np.hstack([np.full((len(f), 1), 3), f]).ravel())
         self.mesh["value"] = np.zeros(self.num_vertices)
+        self._colors = None
+        if colors is not None:
+            c = np.asarray(colors, dtype=np.float64)
+            if c.shape != (self.num_vertices, 3):
+                raise KDInputError(f"colors: expected ({self.num_vertices}, 3) RGB values, got shape {c.shape}")
+            self.mesh["rgb"] = (np.clip(c, 0, 1) * 255).astype(np.uint8)
+            self._colors = True
         self.plotter = pv.Plotter(off_screen=True, window_size=self.size, lighting="three lights")
         self.plotter.set_background("white")
         self._style = None
@@ -101,6 +130,9 @@ class FaceRenderer:
                                                smooth_shading=True, specular=0.0, show_scalar_bar=False)
         elif kind == "mask":
             self.actor = self.plotter.add_mesh(self.mesh, color="black", lighting=False, scalars=None)
+        elif self._colors:
+            self.actor = self.plotter.add_mesh(self.mesh, scalars="rgb", rgb=True, smooth_shading=True,
+                                               specular=0.2)
         else:
             self.actor = self.plotter.add_mesh(self.mesh, color=self.color, smooth_shading=True, specular=0.2,
                                                scalars=None)
@@ -216,15 +248,17 @@ def save_figure(fig, path, *, dpi: int = 100) -> Path:
     return Path(path)
 
 
-def filmstrip(path, faces, rows: dict[str, np.ndarray], times, *, reference=None, title: str | None = None) -> Path:
-    """A grid PNG: one row per label in ``rows`` (each (F, N, 3) [m]), one column per time in ``times`` [s]."""
+def filmstrip(path, faces, rows: dict[str, np.ndarray], times, *, reference=None, title: str | None = None,
+              colors=None) -> Path:
+    """A grid PNG: one row per label in ``rows`` (each (F, N, 3) [m]), one column per time in ``times`` [s];
+    ``colors`` (N, 3) colours the parts (see :func:`part_colors`)."""
     first = np.asarray(next(iter(rows.values())))
     ref = first[0] if reference is None else reference
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
     for label, frames in rows.items():
         if len(frames) != len(times):
             raise KDInputError(f"filmstrip row {label!r}: {len(frames)} frames for {len(times)} times")
-    with FaceRenderer(faces, ref) as renderer:
+    with FaceRenderer(faces, ref, colors=colors) as renderer:
         images = {label: [renderer.render(x) for x in frames] for label, frames in rows.items()}
     fig = image_grid(images, [f"t = {t:.2f} s" for t in times], title=title)
     return save_figure(fig, path)

@@ -101,12 +101,14 @@ def side_by_side(images: list[np.ndarray], *, gap: int = 4) -> np.ndarray:
 
 
 def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float, reference=None, size=(240, 280),
-                 progress: bool | None = None, format: str | None = None, timings: list | None = None) -> Path:
+                 progress: bool | None = None, format: str | None = None, timings: list | None = None,
+                 colors=None) -> Path:
     """A movie with one panel per label of ``rows`` (each (F, N, 3) [m] at ``times`` (F,) [s]), side by side.
 
     Each panel is labelled with its row label and the frame time. ``progress``: show a tqdm bar (default: when
-    stderr is a terminal). ``timings``: a list that receives the render time of each frame [s]. Returns the path
-    written (MP4, or GIF on fallback).
+    stderr is a terminal). ``timings``: a list that receives the render time of each frame [s]. ``colors``: per-vertex
+    part colours (N, 3) (see :func:`~kdfaces.viz.figures.part_colors`). Returns the path written (MP4, or GIF on
+    fallback).
     """
     from tqdm import tqdm
 
@@ -120,7 +122,7 @@ def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float,
     ref = first[0] if reference is None else reference
     show = sys.stderr.isatty() if progress is None else progress
     frames = []
-    with FaceRenderer(faces, ref, size=size) as renderer:
+    with FaceRenderer(faces, ref, size=size, colors=colors) as renderer:
         for k in tqdm(range(len(times)), desc="movie", unit="frame", disable=not show):
             t0 = time.perf_counter()
             frames.append(side_by_side([renderer.render(x[k], label=f"{label}  t = {times[k]:.2f} s")

@@ -110,42 +110,66 @@ def tet_quality(mesh: TetMesh) -> dict:
 
 
 def _check_surface(v, f, where):
+    """Refuse, with one line naming ``where``, a surface that cannot bound a solid: open (boundary edges), not
+    2-manifold (an edge in more than two triangles, or a vertex where separate fans meet), inconsistently wound,
+    wound inward (negative enclosed volume), or intersecting itself. libigl does the manifold checks."""
+    import igl
     import trimesh
 
     check_finite(v, f"{where} vertices")
     if f.ndim != 2 or f.shape[1] != 3 or len(f) < 4:
         raise KDInputError(f"{where}: expected a closed triangle surface (F, 3) with F ≥ 4, got {f.shape}")
+    if f.min() < 0 or f.max() >= len(v):
+        raise KDInputError(f"{where}: face indices must lie in [0, {len(v)})")
+    ff = np.ascontiguousarray(f, dtype=np.int64)
+    if not igl.is_edge_manifold(ff)[0]:
+        raise KDInputError(f"{where}: surface is not 2-manifold: an edge is shared by more than two triangles")
     m = trimesh.Trimesh(v, f, process=False)
     if not m.is_watertight:
-        raise KDInputError(f"{where}: surface is not closed (has boundary or non-manifold edges); close the holes "
-                           "first (e.g. trimesh.repair.fill_holes) — a volume mesh needs a closed surface")
+        raise KDInputError(f"{where}: surface is not closed (it has boundary edges); close the holes first "
+                           "(e.g. trimesh.repair.fill_holes) — a volume mesh needs a closed surface")
+    used = np.unique(ff)
+    if not igl.is_vertex_manifold(ff)[used].all():
+        bad = int(used[~igl.is_vertex_manifold(ff)[used]][0])
+        raise KDInputError(f"{where}: surface is not 2-manifold at vertex {bad}: separate sheets touch there (e.g. "
+                           "two solids joined at one point); make them one solid or separate them")
     if not m.is_winding_consistent:
-        raise KDInputError(f"{where}: surface has inconsistent face winding; fix normals first")
-    if _self_intersects(m):
-        raise KDInputError(f"{where}: surface intersects itself; a volume mesh needs a non-self-intersecting surface")
+        raise KDInputError(f"{where}: surface has inconsistent face winding; orient every face the same way")
+    p = v[f]
+    volume = float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+    if volume < 0:
+        raise KDInputError(f"{where}: faces wind inward (the enclosed volume is {volume:.3g}, negative); flip the "
+                           "faces so their normals point out")
+    pair = _self_intersection(v, ff)
+    if pair is not None:
+        raise KDInputError(f"{where}: surface intersects itself (triangles {pair[0]} and {pair[1]} cross); a volume "
+                           "mesh needs a surface that does not")
     return m
 
 
-def _self_intersects(m) -> bool:
-    """True when two non-adjacent triangles cross: sample each edge and test it against the others via ray casts."""
-    import trimesh
+def _self_intersection(v: np.ndarray, f: np.ndarray) -> tuple[int, int] | None:
+    """A pair of non-adjacent triangles that intersect, or None. Candidates are triangle pairs whose bounding boxes
+    overlap (found through a k-d tree of box centres), exact tests by libigl's ``tri_tri_intersection_test_3d``."""
+    import igl
+    from scipy.spatial import cKDTree
 
-    v, f = m.vertices, m.faces
-    edges = m.edges_unique
-    o = v[edges[:, 0]]
-    d = v[edges[:, 1]] - o
-    length = np.linalg.norm(d, axis=1)
-    try:
-        locs, ray_idx, tri_idx = trimesh.ray.ray_triangle.RayMeshIntersector(m).intersects_location(
-            o, d / length[:, None], multiple_hits=True)
-    except Exception:  # noqa: BLE001 - a ray engine failure is not a verdict
-        return False
-    if len(ray_idx) == 0:
-        return False
-    t = np.einsum("ij,ij->i", locs - o[ray_idx], d[ray_idx] / length[ray_idx, None])
-    inside = (t > 1e-6 * length[ray_idx]) & (t < (1 - 1e-6) * length[ray_idx])
-    touch = (f[tri_idx] == edges[ray_idx, :1]).any(1) | (f[tri_idx] == edges[ray_idx, 1:]).any(1)
-    return bool((inside & ~touch).any())
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    radius = 2.0 * float(np.linalg.norm(half, axis=1).max())
+    pairs = cKDTree(center).query_pairs(radius, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    a, b = pairs[:, 0], pairs[:, 1]
+    overlap = (np.abs(center[a] - center[b]) <= half[a] + half[b]).all(axis=1)
+    shared = (f[a][:, :, None] == f[b][:, None, :]).any(axis=(1, 2))
+    cand = pairs[overlap & ~shared]
+    for i, j in cand:
+        hit, coplanar, _, _ = igl.tri_tri_intersection_test_3d(p[i, 0:1], p[i, 1:2], p[i, 2:3], p[j, 0:1],
+                                                               p[j, 1:2], p[j, 2:3])
+        if hit:
+            return int(i), int(j)
+    return None
 
 
 _PYTETWILD = """

@@ -118,9 +118,8 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
     Returns:
         a :class:`WindowRun`.
     """
-    from tqdm import tqdm
-
     from kdfaces.io.rigfiles import load_default_rig
+    from kdfaces.resources import progress_bar
 
     from ..fem.default_hat import DEFAULT_MATERIAL
     from ..fem.model import FEMModel
@@ -134,7 +133,7 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
     run = WindowRun(result={})
     stages = ["tetrahedralise", "assemble", "eigsh", "verify linear"] + (["verify nonlinear"] if nonlinear else [])
     stages += (["KD sweep"] if sweep and attach_below is None else []) + (["report"] if figures else [])
-    bar = tqdm(total=len(stages), desc="kdfem window", unit="stage", disable=not progress)
+    bar = progress_bar("kdfem window", len(stages), progress)
     clock = [time.perf_counter()]
 
     def done(name):

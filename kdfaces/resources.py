@@ -1,0 +1,103 @@
+"""Resources: estimate memory before allocating and split work so it stays within a budget; report progress of
+long stages.
+
+The default budget is half of the memory the machine has available now (``MemAvailable``), so a bake never
+competes with the rest of the machine for the other half; every entry point takes an explicit ``max_memory_bytes``
+(the command line's ``--max-memory``).
+"""
+
+from __future__ import annotations
+
+import os
+
+from .errors import KDInputError
+
+__all__ = ["available_memory_bytes", "memory_budget_bytes", "format_bytes", "parse_bytes", "progress_bar",
+           "PROGRESS_DELAY_S"]
+
+#: A stage shows a progress bar once it has run this long [s] (short stages stay quiet); the environment variable
+#: ``KDFACES_PROGRESS_DELAY_S`` overrides it (0 shows every bar).
+PROGRESS_DELAY_S = float(os.environ.get("KDFACES_PROGRESS_DELAY_S", 2.0))
+
+#: The share of the available memory a computation may plan to use by default.
+BUDGET_FRACTION = 0.5
+
+
+def available_memory_bytes() -> int:
+    """Memory the machine can give now [bytes]: ``MemAvailable`` from /proc/meminfo, else physical memory."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - every supported OS has one of the two
+        return 8 << 30
+
+
+def memory_budget_bytes(max_memory_bytes: int | None = None) -> int:
+    """``max_memory_bytes`` if given (must be positive), else half the available memory [bytes]."""
+    if max_memory_bytes is None:
+        return int(BUDGET_FRACTION * available_memory_bytes())
+    if isinstance(max_memory_bytes, bool) or not int(max_memory_bytes) > 0:
+        raise KDInputError(f"max_memory_bytes: expected a positive number of bytes, got {max_memory_bytes!r}")
+    return int(max_memory_bytes)
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes as a short human-readable size (1024-based: KiB, MiB, GiB, TiB)."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024.0
+    return f"{n:.3g} PiB"  # pragma: no cover
+
+
+def parse_bytes(text: str, *, where: str = "--max-memory") -> int:
+    """Bytes from ``"8G"``, ``"512M"``, ``"1.5GiB"`` or a plain number (1024-based suffixes)."""
+    s = str(text).strip().lower().removesuffix("ib").removesuffix("b")
+    scale = {"k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}.get(s[-1:], 1)
+    if scale != 1:
+        s = s[:-1]
+    try:
+        value = float(s) * scale
+    except ValueError:
+        raise KDInputError(f"{where}: expected a size such as 512M or 8G, got {text!r}") from None
+    if not value > 0:
+        raise KDInputError(f"{where}: expected a positive size, got {text!r}")
+    return int(value)
+
+
+def progress_bar(desc: str, total: int, enabled: bool):
+    """A tqdm bar on stderr for a stage of ``total`` units, shown only once the stage has run
+    :data:`PROGRESS_DELAY_S` seconds; a do-nothing stand-in when not ``enabled``. Use as a context manager and call
+    ``update(n)``."""
+    if not enabled:
+        return _NoBar()
+    import sys
+
+    from tqdm import tqdm
+
+    tty = sys.stderr.isatty()
+    return tqdm(total=int(total), desc=desc, delay=PROGRESS_DELAY_S, leave=not tty, dynamic_ncols=True,
+                mininterval=0.1 if tty else 5.0, file=sys.stderr)
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def set_postfix_str(self, s: str) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False

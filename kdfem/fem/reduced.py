@@ -51,7 +51,7 @@ from .attachment import head_motion
 from .integrator import apply_frame
 from .system import HatSystem
 
-__all__ = ["ReducedHatSystem", "ReducedState", "modal_window_kernel"]
+__all__ = ["ReducedHatSystem", "ReducedState", "modal_window_kernel", "rotation_strain_kernel"]
 
 wp.set_module_options({"enable_backward": False})
 
@@ -117,6 +117,27 @@ def modal_window_kernel(first: int, last: int, R: wp.array2d(dtype=wp.mat33d), p
         for i in range(r):
             q_prev[b, i] = q[b, i]
             q[b, i] = q_next[b, i]
+
+
+@wp.kernel
+def rotation_strain_kernel(grad: wp.array2d(dtype=wp.mat33d), block: int, F_out: wp.array2d(dtype=wp.mat33d)):
+    """Per (batch, block of ``block`` tets): F = exp([w]×)(I + sym ∇u) from the displacement gradient ∇u
+    (``grad``), w = axial(skew ∇u) (Rodrigues' formula; its series below 1e-8 rad)."""
+    b, k = wp.tid()
+    one = wp.float64(1.0)
+    for e in range(k * block, wp.min((k + 1) * block, grad.shape[1])):
+        G = grad[b, e]
+        w = wp.float64(0.5) * wp.vec3d(G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1])
+        S = wp.float64(0.5) * (G + wp.transpose(G))
+        th = wp.length(w)
+        K = wp.mat33d(wp.float64(0.0), -w[2], w[1], w[2], wp.float64(0.0), -w[0], -w[1], w[0], wp.float64(0.0))
+        a = one
+        c = wp.float64(0.5)
+        if th > wp.float64(1e-8):
+            a = wp.sin(th) / th
+            c = (one - wp.cos(th)) / (th * th)
+        I = wp.identity(n=3, dtype=wp.float64)
+        F_out[b, e] = (I + a * K + c * (K * K)) * (I + S)
 
 
 @dataclass
@@ -216,8 +237,8 @@ class ReducedHatSystem(HatSystem):
         r = U.shape[1]
         Un = np.zeros((r, N, 3))
         Un[:, fr] = U.T.reshape(r, len(fr), 3)
-        # ∇(U_i)_e = Σ_k U_i[t_k] ⊗ b_{e,k}: (T, r, 3, 3)
-        self._rs["grad"] = np.einsum("rtkd,tkj->trdj", Un[:, tets], b)
+        # ∇(U_i)_e = Σ_k U_i[t_k] ⊗ b_{e,k}, as an (r, T·9) matrix so that ∇u = q @ it is one BLAS product
+        self._rs["grad"] = np.ascontiguousarray(np.einsum("rtkd,tkj->rtdj", Un[:, tets], b).reshape(r, -1))
 
     def _reconstruct(self, q: np.ndarray) -> np.ndarray:
         """Positions in the head frame (B, N, 3) from modal coordinates (B, r) by rotation-strain: each tet's
@@ -228,20 +249,13 @@ class ReducedHatSystem(HatSystem):
         rs = self._rs
         md = self.model
         B = len(q)
-        Gu = np.einsum("br,trdj->btdj", q, rs["grad"])  # (B, T, 3, 3)
-        w = 0.5 * np.stack([Gu[..., 2, 1] - Gu[..., 1, 2], Gu[..., 0, 2] - Gu[..., 2, 0],
-                            Gu[..., 1, 0] - Gu[..., 0, 1]], axis=-1)
-        S = 0.5 * (Gu + np.swapaxes(Gu, -1, -2))
-        th = np.linalg.norm(w, axis=-1)[..., None, None]
-        Kx = np.zeros_like(Gu)
-        Kx[..., 0, 1], Kx[..., 0, 2], Kx[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-        Kx[..., 1, 0], Kx[..., 2, 0], Kx[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
-        small = th < 1e-8
-        a = np.where(small, 1.0, np.sin(th) / np.where(small, 1.0, th))
-        c = np.where(small, 0.5, (1 - np.cos(th)) / np.where(small, 1.0, th) ** 2)
-        Rm = np.eye(3) + a * Kx + c * (Kx @ Kx)
-        F = Rm @ (np.eye(3) + S)  # (B, T, 3, 3)
-        T = F.shape[1]
+        Gu = np.ascontiguousarray((q @ rs["grad"]).reshape(B, -1, 3, 3))  # (B, T, 3, 3): ∇u per tet
+        T = Gu.shape[1]
+        d = md.device
+        F_wp = wp.empty((B, T), dtype=wp.mat33d, device=d)
+        wp.launch(rotation_strain_kernel, dim=(B, -(-T // 256)),
+                  inputs=[wp.array(Gu, dtype=wp.mat33d, device=d), 256], outputs=[F_wp], device=d)
+        F = F_wp.numpy()  # (B, T, 3, 3)
         X = rs["X"]
         fr, att = md.free, md.attached
         # normal equations per coordinate d: L y_d = Gᵀ W f_d, f_d the rows (e, j) ↦ F[e, d, j]; all members and

@@ -192,7 +192,8 @@ class ImplicitEuler:
     after a backtracked line search or ``force_it`` iterations; at most once per member and step);
     ``threads``: batch members are split over this many threads of one persistent pool (Warp launches and SuperLU
     release the GIL). ``reference``: positions (N, 3) [m] whose PSD-projected tangent stiffness, rotated per node
-    from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node).
+    from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node;
+    attribute ``nodal`` = False rotates it by the bone instead, as before).
     """
 
     def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.7,

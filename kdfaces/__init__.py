@@ -2,53 +2,73 @@
 
 Units are SI throughout: metres, seconds, kilograms. Arrays of vertex positions are (N, 3) or (T, N, 3).
 The subpackages follow the pipeline (rig → motion → dynamics → KD → IKD → viz/io, shots); this module re-exports
-what scripts use most.
+what scripts use most. Its names are imported on first use (PEP 562), so ``import kdfaces.cli`` starts fast and the
+command-line tools can take over Ctrl-C before any heavy library loads.
 """
 
-from .defaults import default_step
-from .dynamics import FaceModel, FaceSystem, soft_tissue_settle_map
-from .errors import KDError, KDInputError, KDIOError, KDNumericalError, SimulationBlowUpError
-from .ikd import (
-    AsymmetricBell,
-    CorrectedTrajectory,
-    Correction,
-    GaussianBasis,
-    IKDResult,
-    PolyBell,
-    end_effector_constraint,
-    independent_check,
-    make_basis,
-    pose_constraint,
-    solve_ikd,
-    subset_constraint,
-    velocity_constraint,
-)
-from .io import (
-    export_rig,
-    export_trajectory,
-    livelinkface_animation,
-    load_default_rig,
-    load_gltf,
-    load_rig,
-    read_livelinkface,
-    save_gltf,
-    save_npz,
-    save_obj_folder,
-)
-from .kd import observe_kinematic, simulate_full, simulate_kd, window_steps
-from .motion import (
-    FaceAnimation,
-    JointDrive,
-    JointTrajectory,
-    KeyframeCurve,
-    KinematicTrajectory,
-    ShapeTrack,
-    SkeletonAnimation,
-)
-from .rig import BlendshapeRig, Skeleton, kinematic_pose, rig_pose, vertex_group
-from .shots import DEMO_SHOT, demo_animation, load_shot, run_shot
-from .viz.kd_report import kd_error_report, write_kd_report
-from .window import WindowEstimate, automatic_window, window_1d
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    'default_step': 'defaults',
+    'FaceModel': 'dynamics',
+    'FaceSystem': 'dynamics',
+    'soft_tissue_settle_map': 'dynamics',
+    'KDError': 'errors',
+    'KDInputError': 'errors',
+    'KDIOError': 'errors',
+    'KDNumericalError': 'errors',
+    'SimulationBlowUpError': 'errors',
+    'AsymmetricBell': 'ikd',
+    'CorrectedTrajectory': 'ikd',
+    'Correction': 'ikd',
+    'GaussianBasis': 'ikd',
+    'IKDResult': 'ikd',
+    'PolyBell': 'ikd',
+    'end_effector_constraint': 'ikd',
+    'independent_check': 'ikd',
+    'make_basis': 'ikd',
+    'pose_constraint': 'ikd',
+    'solve_ikd': 'ikd',
+    'subset_constraint': 'ikd',
+    'velocity_constraint': 'ikd',
+    'export_rig': 'io',
+    'export_trajectory': 'io',
+    'livelinkface_animation': 'io',
+    'load_default_rig': 'io',
+    'load_gltf': 'io',
+    'load_rig': 'io',
+    'read_livelinkface': 'io',
+    'save_gltf': 'io',
+    'save_npz': 'io',
+    'save_obj_folder': 'io',
+    'observe_kinematic': 'kd',
+    'simulate_full': 'kd',
+    'simulate_kd': 'kd',
+    'window_steps': 'kd',
+    'FaceAnimation': 'motion',
+    'JointDrive': 'motion',
+    'JointTrajectory': 'motion',
+    'KeyframeCurve': 'motion',
+    'KinematicTrajectory': 'motion',
+    'ShapeTrack': 'motion',
+    'SkeletonAnimation': 'motion',
+    'BlendshapeRig': 'rig',
+    'Skeleton': 'rig',
+    'kinematic_pose': 'rig',
+    'rig_pose': 'rig',
+    'vertex_group': 'rig',
+    'DEMO_SHOT': 'shots',
+    'demo_animation': 'shots',
+    'load_shot': 'shots',
+    'run_shot': 'shots',
+    'kd_error_report': 'viz.kd_report',
+    'write_kd_report': 'viz.kd_report',
+    'WindowEstimate': 'window',
+    'automatic_window': 'window',
+    'window_1d': 'window',
+}
 
 __all__ = [
     # rigs and motion
@@ -70,3 +90,16 @@ __all__ = [
     # errors
     "KDError", "KDInputError", "KDNumericalError", "SimulationBlowUpError", "KDIOError",
 ]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'kdfaces' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from .errors import KDError
 
-__all__ = ["main", "build_parser", "configure_output", "execute", "peak_memory_bytes"]
+__all__ = ["main", "build_parser", "configure_output", "execute", "command", "peak_memory_bytes"]
 
 
 def configure_output(*, verbose: bool = False) -> None:
@@ -50,24 +50,65 @@ def configure_output(*, verbose: bool = False) -> None:
         os.close(saved)
 
 
-def _import_renderer(verbose: bool) -> None:
-    """Import pyvista/VTK now, with SIGINT and SIGTERM held back: an interrupt must never land inside VTK's import
-    (it can crash the interpreter there); it is delivered right after."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+def _load_native(args, *, renders: bool, verbose: bool) -> None:
+    """Set up the process (:func:`configure_output`: Warp) and import the native libraries the command will use —
+    VTK when it ``renders``, USD when it exports USD — with SIGINT and SIGTERM held back: an interrupt must never
+    land inside such an import or initialisation (half-registered native state turns into an ImportError, or a crash
+    at exit). It is only recorded meanwhile, and raised right after."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, _record_signal) for s in held}
     try:
-        import pyvista  # noqa: F401
-        from vtkmodules.vtkCommonCore import vtkLogger
+        configure_output(verbose=verbose)
+        if renders:
+            import pyvista  # noqa: F401
+            from vtkmodules.vtkCommonCore import vtkLogger
 
-        if not verbose:
-            vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
+            if not verbose:
+                vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
+        if any(str(kind).startswith("usd") for kind in (getattr(args, "export", None) or ())):
+            from pxr import Sdf, Tf, Usd, UsdGeom, Vt  # noqa: F401
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt
 
 
 def peak_memory_bytes() -> int:
     """Peak resident memory of this process so far [bytes]."""
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+_INTERRUPTED = threading.Event()
+
+
+def _on_signal(signum, frame):
+    _INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def _record_signal(signum, frame):
+    _INTERRUPTED.set()
+
+
+def command(prog: str, build, argv, *, renders) -> int:
+    """Parse ``argv`` with ``build()`` and :func:`execute` it, with Ctrl-C and SIGTERM taken over from the first
+    moment (before any heavy library is imported, so none can swallow the interrupt unnoticed). While the parser
+    imports the libraries, an interrupt is only recorded (raised inside an import it can leave a half-imported module
+    or a library's own state behind) and acted on right after."""
+    previous = {s: signal.signal(s, _record_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    _INTERRUPTED.clear()
+    try:
+        args = build().parse_args(argv)
+        if _INTERRUPTED.is_set():
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
+        if getattr(args, "out", "") is None and getattr(args, "shot", None):
+            args.out = str(Path("kd-out") / Path(args.shot).stem)
+        return execute(prog, args, renders=renders(args))
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def execute(prog: str, args, *, renders: bool = False) -> int:
@@ -76,19 +117,12 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     from .io.atomic import OutputFolder
     from .resources import format_bytes
 
-    configure_output(verbose=getattr(args, "verbose", False))
-    interrupted = threading.Event()
-
-    def on_signal(signum, frame):
-        interrupted.set()
-        raise KeyboardInterrupt
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    interrupted = _INTERRUPTED
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     folder = None
     t0 = time.perf_counter()
     try:
-        if renders:
-            _import_renderer(getattr(args, "verbose", False))
+        _load_native(args, renders=renders, verbose=getattr(args, "verbose", False))
         final = getattr(args, "out", None)
         if final is not None:
             folder = OutputFolder(final)
@@ -139,7 +173,8 @@ def _demo(args) -> dict:
 
     rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
     return run_demo(args.out, rig=rig, threads=args.threads, exports=args.export,
-                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True)
+                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True,
+                    offset_grid=args.offset_grid > 0, offset_grid_size=max(args.offset_grid, 1))
 
 
 def add_rig_units_option(parser) -> None:
@@ -207,21 +242,32 @@ def build_parser() -> argparse.ArgumentParser:
     add_rig_units_option(demo)
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
+    demo.add_argument("--offset-grid", type=int, default=3, metavar="N",
+                      help="N x N hat-tip targets of the Fig. 9 analog (default 3, about 30 s; 0 skips it)")
     add_export_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)
     add_render_parser(sub)
     add_view_parser(sub)
     add_export_rig_parser(sub)
+    punch = sub.add_parser("punch", help="skeletal KD on MuJoCo: the relaxed punch, its IKD, On the Beat timing")
+    punch.add_argument("--out", default="kd-out/punch", help="output folder (default kd-out/punch)")
+    punch.add_argument("--no-movie", dest="movie", action="store_false", help="skip movie.mp4")
+    punch.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    punch.set_defaults(func=_punch)
     return ap
+
+
+def _punch(args) -> dict:
+    from .articulated.punch import run_punch
+
+    return run_punch(args.out, movie=args.movie)
 
 
 def main(argv=None) -> int:
     """``kdfaces …``: parse ``argv`` and run the command (see :func:`execute`); returns the exit status."""
-    args = build_parser().parse_args(argv)
-    if getattr(args, "out", "") is None and getattr(args, "shot", None):
-        args.out = str(Path("kd-out") / Path(args.shot).stem)
-    return execute("kdfaces", args, renders=args.command in ("demo", "run", "render", "view"))
+    return command("kdfaces", build_parser, argv,
+                   renders=lambda args: args.command in ("demo", "run", "render", "view"))
 
 
 if __name__ == "__main__":

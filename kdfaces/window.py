@@ -21,6 +21,7 @@ from scipy.special import lambertw
 from .defaults import EPSILON_FRACTION, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
+from .motion.trajectory import scan_trajectory
 
 __all__ = ["DEFAULT_EPSILON_FRACTION", "damping_regime", "window_1d", "WindowEstimate", "automatic_window",
            "grid_times"]
@@ -124,7 +125,7 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64)
     acc_max = 0.0
     for i in range(0, len(t), 32):
-        acc = trajectory.evaluate(t[i:i + 32], order=2)[2]
+        acc = scan_trajectory(trajectory, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
         acc_max = max(acc_max, float(np.sqrt((acc**2).sum(axis=-1)).max()))
     v0 = acc_max * h
     windows = np.atleast_1d(window_1d(v0, model.kp, model.kd, epsilon_m=epsilon))

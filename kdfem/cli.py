@@ -1,4 +1,5 @@
 """The ``kdfem`` command: ``kdfem demo`` (the floppy hat), ``kdfem window [MESH]`` (the modal window report) and
+``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem follow`` (a head that follows through) and
 ``kdfem view`` (the hat's scrubbing viewer)."""
 
 from __future__ import annotations
@@ -7,16 +8,19 @@ import argparse
 import sys
 
 from kdfaces import defaults
-from kdfaces.cli import execute
+from kdfaces.cli import command
 
 __all__ = ["main", "build_parser"]
 
 
 def _demo(args) -> dict:
+    from kdfaces.defaults import user_cache_dir
+
     from .demo import run_hat_demo
 
     return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
-                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads)
+                        edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads,
+                        cache_dir=user_cache_dir() / "tets")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,21 +42,46 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)
+    door = sub.add_parser("door", help="the floppy hat under the door: IK on the neck chain, IKD on posture, clearance")
+    door.add_argument("shot", nargs="?", default=None, metavar="DOOR_SHOT",
+                      help="a door shot file (.toml; default: the built-in scene kdfem/scenes/door.toml)")
+    door.add_argument("--out", default="kd-out/door", help="output folder (default kd-out/door)")
+    door.add_argument("--no-movie", dest="movie", action="store_false", default=None, help="skip movie.mp4")
+    door.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    door.set_defaults(func=_door)
+    follow = sub.add_parser("follow", help="a sharp head turn on the skeletal KD neck (MuJoCo); face and hat ride it")
+    follow.add_argument("--out", default="kd-out/follow", help="output folder (default kd-out/follow)")
+    follow.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    follow.set_defaults(func=_follow)
     from .viewer import add_view_parser
 
     add_view_parser(sub)
     return ap
 
 
+def _follow(args) -> dict:
+    from .scenes.follow import run_follow
+
+    return run_follow(args.out)
+
+
+def _door(args) -> dict:
+    from .scenes.door import run_door
+
+    return run_door(args.out, shot=args.shot, movie=args.movie, progress=not args.json)
+
+
 def _window(args) -> dict:
     """The ``kdfem window`` handler: runs :func:`~kdfem.modal.window.window_report`; returns the window.json dict."""
+    from kdfaces.defaults import user_cache_dir
+
     from .modal.window import window_report
 
     run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max,
                         rayleigh_alpha=args.alpha, rayleigh_beta=args.beta, edge_length_fac=args.edge_length_fac,
                         scale=args.scale, attach_distance_m=args.attach_distance, attach_below_m=args.attach_below,
                         modes=args.modes, nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride,
-                        progress=True)
+                        progress=True, cache_dir=user_cache_dir() / "tets")
     return run.result
 
 
@@ -85,8 +114,7 @@ def _add_window_parser(subparsers):
 
 def main(argv=None) -> int:
     """``kdfem …``: parse ``argv`` and run the command (see :func:`kdfaces.cli.execute`); returns the exit status."""
-    args = build_parser().parse_args(argv)
-    return execute("kdfem", args, renders=True)
+    return command("kdfem", build_parser, argv, renders=lambda args: True)
 
 
 if __name__ == "__main__":

@@ -30,13 +30,15 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
 @renamed_kwargs(window="window_s", h="step_s")
 def run_hat_demo(out, *, rig="default", window_s: float = defaults.HAT_WINDOW_S, step_s: float = defaults.HAT_STEP_S,
                  edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, frame_stride: int = 2,
-                 threads: int = 2) -> dict:
+                 threads: int = 2, cache_dir=None) -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | reduced KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png, reduced_error_vs_full.png and summary.json; returns the
     summary. ``window_s`` [s] is the KD window δ, ``step_s`` [s] the step; every ``frame_stride``-th frame of the
     demo animation is evaluated. The reduced hat (:class:`~kdfem.fem.reduced.ReducedHatSystem`) is reported per
-    frame against the full simulation: its tip's and its largest vertex error.
+    frame against the full simulation: its tip's and its largest vertex error. The default hat's tets ship in
+    ``meshes/``; another ``edge_length_fac`` meshes the hat once and keeps the tets in ``cache_dir`` by content hash
+    (pytetwild's output differs run to run), when one is given.
     """
     window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig
@@ -56,7 +58,7 @@ def run_hat_demo(out, *, rig="default", window_s: float = defaults.HAT_WINDOW_S,
     rig = load_rig(rig)
     anim = demo_animation()
     traj = KinematicTrajectory(rig, anim)
-    system, surf, _ = default_hat_system(rig, edge_length_fac=edge_length_fac, cache_dir=out / ".cache",
+    system, surf, _ = default_hat_system(rig, edge_length_fac=edge_length_fac, cache_dir=cache_dir,
                                          threads=threads)
     mesh = system.model.mesh
     times = anim.frame_times[:: frame_stride]  # every frame_stride-th frame: "fps" below is their rate

@@ -70,3 +70,69 @@ class LinearPDSystem:
 
     def observe(self, state):
         return state["x"].copy()
+
+
+def two_link_chain(l1: float = 0.3, l2: float = 0.25):
+    """A planar arm in the x-y plane: ``shoulder`` at the origin, ``elbow`` at (l1, 0, 0), ``hand`` at
+    (l1 + l2, 0, 0) (the hand joint's pivot is the end point). Roll (about z) bends it in the plane."""
+    from kdfaces.rig.skeleton import Skeleton
+
+    return Skeleton(names=("shoulder", "elbow", "hand"),
+                    positions=np.array([[0.0, 0.0, 0.0], [l1, 0.0, 0.0], [l1 + l2, 0.0, 0.0]]),
+                    parents=np.array([-1, 0, 1]), weights=np.zeros((0, 3)))
+
+
+def two_link_ik(target, l1: float, l2: float, elbow_sign: float = 1.0):
+    """Closed-form planar 2-link IK: shoulder and elbow roll [rad] that put the end point at ``target`` (x, y)."""
+    x, y = target
+    c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2 * l1 * l2)
+    q2 = elbow_sign * np.arccos(np.clip(c2, -1.0, 1.0))
+    q1 = np.arctan2(y, x) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
+    return q1, q2
+
+
+class ChainPointSystem:
+    """A point fixed to a joint of a chain (``stiffness`` None: rigidly, the KD state is FK itself), or a unit mass
+    tracking that point with a PD spring ω², 2ζω (implicit Euler): a vertex-free KD system whose corrected state is
+    the joint angles. ``correction_jacobian`` is the analytic chain Jacobian at the KD point (paper §4.4)."""
+
+    def __init__(self, skeleton, joint: str, point, *, omega: float | None = None, zeta: float = 0.3):
+        self.skeleton, self.joint = skeleton, joint
+        self.point = np.asarray(point, dtype=np.float64)
+        self.omega, self.zeta = omega, zeta
+
+    def kinematic(self, traj, times, order=1):
+        from kdfaces.motion.joints import joint_frames
+
+        G = joint_frames(traj, times)
+        j = self.skeleton.index(self.joint)
+        X = np.append(self.point, 1.0)
+        return [(g[:, j] @ X)[:, None, :3] for g in G[: order + 1]]
+
+    def initial_state(self, traj, times):
+        x, v = self.kinematic(traj, times)
+        return {"x": x.copy(), "v": v.copy(), "t": np.asarray(times, dtype=np.float64).copy(), "traj": traj}
+
+    def step(self, state, traj, times, h):
+        state["t"], state["traj"] = np.asarray(times, dtype=np.float64) + h, traj
+        xk, vk = self.kinematic(traj, state["t"])
+        if self.omega is None:
+            state["x"], state["v"] = xk, vk
+            return
+        w2, c = self.omega**2, 2 * self.zeta * self.omega
+        v = (state["v"] + h * (w2 * (xk - state["x"]) + c * vk)) / (1 + h * c + h * h * w2)
+        state["v"], state["x"] = v, state["x"] + h * v
+
+    def observe(self, state):
+        return state["x"].copy()
+
+    def observe_kinematic(self, traj, times):
+        return self.kinematic(traj, times, 0)[0]
+
+    def correction_jacobian(self, traj, time_s, x, indices):
+        from kdfaces.motion.ik import point_jacobian
+        from kdfaces.motion.joints import root_translation
+
+        theta = traj.evaluate([time_s], 0)[0][0]
+        root = root_translation(traj, [time_s], 0)[0][0]
+        return point_jacobian(self.skeleton, theta, self.joint, np.asarray(x)[np.asarray(indices)], root=root)

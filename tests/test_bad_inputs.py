@@ -175,7 +175,8 @@ CAPTURE_CASES = [
 
 @pytest.mark.parametrize("case, mutate, field", CAPTURE_CASES, ids=[c[0] for c in CAPTURE_CASES])
 def test_bad_capture(tmp_path, capsys, case, mutate, field):
-    _capture(tmp_path, mutate)  # writes take.csv
+    take = _capture(tmp_path, mutate)
+    assert take.exists()
     shot = tmp_path / "shot.toml"
     shot.write_text('[animation]\nsource = "take.csv"\n')
     out = tmp_path / "out"

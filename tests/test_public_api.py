@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 PACKAGES = ["kdfaces", "kdfaces.rig", "kdfaces.motion", "kdfaces.dynamics", "kdfaces.ikd", "kdfaces.io",
-            "kdfaces.viz", "kdfaces.shots", "kdfem", "kdfem.geometry", "kdfem.fem", "kdfem.modal", "kdfem.viewer"]
+            "kdfaces.articulated",
+            "kdfaces.viz", "kdfaces.shots", "kdfem", "kdfem.geometry", "kdfem.fem", "kdfem.modal",
+            "kdfem.scenes", "kdfem.viewer"]
 
 
 def _project(obj) -> bool:

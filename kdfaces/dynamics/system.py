@@ -24,6 +24,7 @@ import scipy.sparse as sp
 import warp as wp
 
 from ..errors import KDInputError, SimulationBlowUpError
+from ..motion.trajectory import scan_trajectory
 from .kernels import cluster_frames, face_step, track_step
 from .model import FaceModel
 
@@ -492,7 +493,7 @@ class FaceSystem:
         if rigid.any() and state.bake is not None:
             t = state.start_times + state.steps * state.bake.h
             for i in range(0, len(t), 32):
-                x[i:i + 32, rigid] = state.bake.trajectory.evaluate(t[i:i + 32], order=0)[0][:, rigid]
+                x[i:i + 32, rigid] = scan_trajectory(state.bake.trajectory, t[i:i + 32], 0)[0][:, rigid]
         return x
 
     # --- internals ---------------------------------------------------------------------------------------------

@@ -6,12 +6,21 @@ A constraint at time t_i measures a quantity q(x_KD(t_i), x_KD(t_i − h)) and w
 - ``subset`` — the positions of a vertex group only; the other vertices stay free;
 - ``velocity`` — the KD velocity of a vertex group by finite difference of KD states (eq. 12);
 - ``end_effector`` — a point p(x) = Σ_j w_j x_j (e.g. the centroid of a few vertices, a hat tip); its error is
-  mapped to a state displacement through a damped pseudo-inverse of J = ∂p/∂x (eq. 4, 14).
+  mapped to a state displacement through a damped pseudo-inverse of J = ∂p/∂x (eq. 4, 14);
+- ``plane`` — the height q = n·p(x) of such a point along a plane normal n, on the plane (q = offset) or, as an
+  inequality, below it (q ≤ offset: the residual is min(0, offset − q), zero while the point is clear). The
+  one-dimensional error lifts like an end effector's, through J = n·∂p/∂x. The clearance constraint
+  (:mod:`kdfaces.ikd.clearance`) adds such constraints where a pass violates it.
 
 ``residual`` is target − q in the constraint's own space; ``lift`` maps a residual to a state-sized displacement
 e (the correction direction) — directly on vertex states, or through a Jacobian J = ∂x/∂state when the corrected
 state is something else (joint angles, §4.4: ``lift_through``); ``measure`` gives q so the solver can form
 d = q(x̃_KD) − q(x_KD) (eq. 3, 5).
+
+On a mesh (``lift(..., surface=...)``, :mod:`kdfaces.ikd.lifts`) a subset, velocity or end-effector residual lifts
+smoothly: e = r on the group (J e = r for an end effector, the minimal-energy step), falling off to zero over
+``falloff_m`` around it, so the correction has no seam at the group's boundary. A pose constraint covers every
+vertex and lifts as before.
 """
 
 from __future__ import annotations
@@ -28,9 +37,11 @@ from .bases import Basis
 from .corrections import POSITION, VELOCITY
 
 __all__ = ["Constraint", "pose_constraint", "subset_constraint", "velocity_constraint", "end_effector_constraint",
-           "KINDS"]
+           "plane_constraint", "KINDS", "POINT_KINDS"]
 
-KINDS = ("pose", "subset", "velocity", "end_effector")
+KINDS = ("pose", "subset", "velocity", "end_effector", "plane")
+#: Kinds measured at one point p = Σ w_j x_j (their weights sum to one).
+POINT_KINDS = ("end_effector", "plane")
 
 
 @dataclass(frozen=True)
@@ -42,12 +53,17 @@ class Constraint:
         time_s: t_i [s].
         basis: the bell of its correction slot (φ_i; velocity constraints use ψ_i = dφ_i/dt).
         indices: constrained vertex indices, shape (G,).
-        target: (G, 3) positions [m] (pose/subset), velocities [m/s] (velocity), or (3,) point [m] (end effector).
-        weights: (G,) end-effector point weights (sum to one), else None.
+        target: (G, 3) positions [m] (pose/subset), velocities [m/s] (velocity), (3,) point [m] (end effector), or
+            (1,) plane offset [m] (plane).
+        weights: (G,) point weights (sum to one) of end-effector and plane constraints, else None.
         pinv_damping: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹, relative to ‖J‖² (end effector, and every
             constraint lifted through a Jacobian).
+        falloff_m: geodesic radius [m] over which the lifted correction falls off to zero around the constrained
+            vertices on a mesh (subset, velocity, end effector; 0: the sharp lift on the vertices only).
         label: a name for reports.
         index: position in the list it was built in (for unique names in messages; -1 if unknown).
+        normal: (3,) unit plane normal of a plane constraint, else None.
+        inequality: a plane constraint that only asks n·p ≤ offset (below the plane), not equality.
     """
 
     kind: str
@@ -57,9 +73,12 @@ class Constraint:
     target: np.ndarray
     weights: np.ndarray | None = None
     pinv_damping: float = defaults.PINV_DAMPING
+    falloff_m: float = defaults.FALLOFF_M
     label: str = ""
     index: int = -1
     meta: dict = field(default_factory=dict, compare=False)
+    normal: np.ndarray | None = None
+    inequality: bool = False
 
     @property
     def time(self) -> float:
@@ -108,20 +127,45 @@ class Constraint:
             return (x[self.indices] - x_prev[self.indices]) / h  # eq. 12
         if self.kind == "end_effector":
             return self.weights @ x[self.indices]
+        if self.kind == "plane":
+            return np.array([self.normal @ (self.weights @ x[self.indices])])
         return x[self.indices]
 
     def residual(self, x, x_prev, h) -> np.ndarray:
-        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12)."""
-        return self.target - self.measure(x, x_prev, h)
+        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12); for an inequality (below a
+        plane) only the violating part, min(0, offset − n·p)."""
+        r = self.target - self.measure(x, x_prev, h)
+        return np.minimum(r, 0.0) if self.inequality else r
 
     def error(self, r: np.ndarray) -> float:
         """The reported error of a residual: max over vertices of the Euclidean norm [m or m/s]."""
         return float(np.linalg.norm(r, axis=-1).max())
 
-    def lift(self, r: np.ndarray, num_vertices: int) -> np.ndarray:
-        """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors)."""
+    @property
+    def smooth(self) -> bool:
+        """True when it lifts smoothly on a mesh: a subset, velocity or end-effector constraint with falloff_m > 0
+        (pose and plane constraints lift sharply)."""
+        return self.kind in ("subset", "velocity", "end_effector") and self.falloff_m > 0
+
+    def lift(self, r: np.ndarray, num_vertices: int, *, surface=None) -> np.ndarray:
+        """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors).
+
+        With a :class:`~kdfaces.ikd.Surface` of the N vertices and :attr:`smooth`, the displacement is the
+        smooth lift of :mod:`kdfaces.ikd.lifts` (exactly r on the group, or J e = r/(1 + μ²) for an end effector,
+        falling off over ``falloff_m``); else r on the constrained vertices and zero elsewhere.
+        """
+        if surface is not None and self.smooth:
+            if self.kind == "end_effector":
+                op = surface.lift_for(self.indices, falloff_m=self.falloff_m, weights=self.weights)
+                return op.point(r, pinv_damping=self.pinv_damping)
+            return surface.lift_for(self.indices, falloff_m=self.falloff_m).extend(r)
         e = np.zeros((num_vertices, 3))
-        if self.kind == "end_effector":
+        if self.kind == "plane":
+            # q = n·Σ w_j x_j ⇒ J = [w_1 nᵀ … w_G nᵀ], JJᵀ = ‖w‖², J⁺ r = w_j n r / (‖w‖² (1 + μ²))
+            ww = float(self.weights @ self.weights)
+            np.add.at(e, self.indices, self.weights[:, None] * self.normal[None, :] * (float(r[0]) / (
+                ww * (1.0 + self.pinv_damping**2))))
+        elif self.kind == "end_effector":
             # p = Σ w_j x_j ⇒ J = [w_1 I … w_G I], JJᵀ = ‖w‖² I, J⁺ r = w_j r / (‖w‖² (1 + μ²)) for each j
             ww = float(self.weights @ self.weights)
             np.add.at(e, self.indices, self.weights[:, None] * r[None, :] / (ww * (1.0 + self.pinv_damping**2)))
@@ -137,6 +181,8 @@ class Constraint:
         Jg = J.reshape(J.shape[0], 3, -1)
         if self.kind == "end_effector":
             Jm = np.einsum("g,gkn->kn", self.weights, Jg)
+        elif self.kind == "plane":
+            Jm = (self.normal @ np.einsum("g,gkn->kn", self.weights, Jg))[None]
         else:
             Jm = Jg.reshape(-1, Jg.shape[-1])
         rr = np.asarray(r, dtype=np.float64).reshape(-1)
@@ -161,6 +207,13 @@ def _target(value, shape, where: str) -> np.ndarray:
     return t
 
 
+def _falloff(falloff_m, where: str) -> float:
+    if isinstance(falloff_m, bool) or not isinstance(falloff_m, int | float | np.floating | np.integer) \
+            or not (np.isfinite(falloff_m) and falloff_m >= 0):
+        raise KDInputError(f"{where}: falloff_m: expected a non-negative number of metres, got {falloff_m!r}")
+    return float(falloff_m)
+
+
 def _time(time_s, where: str) -> float:
     if isinstance(time_s, bool) or not isinstance(time_s, int | float | np.floating | np.integer) \
             or not np.isfinite(time_s):
@@ -182,31 +235,35 @@ def pose_constraint(time_s, target_positions, basis: Basis, *, num_vertices: int
 
 @renamed_kwargs(time="time_s")
 def subset_constraint(time_s, target_positions, group, basis: Basis, *, num_vertices: int,
-                      label="subset") -> Constraint:
-    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time_s`` [s]."""
+                      falloff_m: float = defaults.FALLOFF_M, label="subset") -> Constraint:
+    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time_s`` [s]; on a
+    mesh the correction falls off over ``falloff_m`` [m] around the group."""
     idx = _indices(group, num_vertices, label)
     tp = np.asarray(target_positions, dtype=np.float64)
     tgt = tp[idx] if tp.shape == (num_vertices, 3) else tp
-    return Constraint("subset", _time(time_s, label), basis, idx, _target(tgt, (len(idx), 3), label), label=label)
+    return Constraint("subset", _time(time_s, label), basis, idx, _target(tgt, (len(idx), 3), label),
+                      falloff_m=_falloff(falloff_m, label), label=label)
 
 
 @renamed_kwargs(time="time_s")
 def velocity_constraint(time_s, target_velocity, basis: Basis, *, group=None, num_vertices: int,
-                        label="velocity") -> Constraint:
+                        falloff_m: float = defaults.FALLOFF_M, label="velocity") -> Constraint:
     """KD velocity (eq. 12) of ``group`` (default all) equal to ``target_velocity`` [m/s] — (G, 3) or (3,) — at
-    ``time_s`` [s]."""
+    ``time_s`` [s]; on a mesh the correction falls off over ``falloff_m`` [m] around the group."""
     idx = _indices(group, num_vertices, label)
     tv = np.asarray(target_velocity, dtype=np.float64)
     tv = np.broadcast_to(tv, (len(idx), 3)).copy() if tv.shape == (3,) else tv
-    return Constraint("velocity", _time(time_s, label), basis, idx, _target(tv, (len(idx), 3), label), label=label)
+    return Constraint("velocity", _time(time_s, label), basis, idx, _target(tv, (len(idx), 3), label),
+                      falloff_m=_falloff(falloff_m, label), label=label)
 
 
 @renamed_kwargs(time="time_s", damping="pinv_damping")
 def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, weights=None, num_vertices: int,
-                            pinv_damping: float = defaults.PINV_DAMPING, label="end_effector") -> Constraint:
+                            pinv_damping: float = defaults.PINV_DAMPING, falloff_m: float = defaults.FALLOFF_M,
+                            label="end_effector") -> Constraint:
     """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) at ``target_point`` (3,) [m] at
     ``time_s`` [s]; the error maps to a correction through the damped pseudo-inverse (eq. 4–5, μ =
-    ``pinv_damping``)."""
+    ``pinv_damping``), on a mesh the minimal-energy one falling off over ``falloff_m`` [m] around the vertices."""
     idx = np.asarray(vertices, dtype=np.int64).reshape(-1)
     idx = _indices(idx, num_vertices, label)
     w = np.full(len(idx), 1.0 / len(idx)) if weights is None else np.asarray(weights, dtype=np.float64)
@@ -215,4 +272,23 @@ def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, wei
     if not (pinv_damping >= 0):
         raise KDInputError(f"{label}: pinv_damping must be non-negative, got {pinv_damping}")
     return Constraint("end_effector", _time(time_s, label), basis, idx, _target(target_point, (3,), label),
-                      weights=w, pinv_damping=float(pinv_damping), label=label)
+                      weights=w, pinv_damping=float(pinv_damping), falloff_m=_falloff(falloff_m, label), label=label)
+
+
+@renamed_kwargs(time="time_s")
+def plane_constraint(time_s, normal, offset_m: float, vertices, basis: Basis, *, weights=None, num_vertices: int,
+                     side: str = "below", pinv_damping: float = defaults.PINV_DAMPING, label="plane") -> Constraint:
+    """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) on the plane n·p = ``offset_m`` [m]
+    (``side="on"``) or below it, n·p ≤ ``offset_m`` (``side="below"``, an inequality: no correction while the point
+    is clear), at ``time_s`` [s]. ``normal`` (3,) is normalised; the error lifts through the damped
+    pseudo-inverse of J = n·∂p/∂x (eq. 4–5, μ = ``pinv_damping``)."""
+    if side not in ("below", "on"):
+        raise KDInputError(f"{label}: side must be 'below' or 'on', got {side!r}")
+    ee = end_effector_constraint(time_s, np.zeros(3), vertices, basis, weights=weights, num_vertices=num_vertices,
+                                 pinv_damping=pinv_damping, falloff_m=0.0, label=label)
+    n = _target(normal, (3,), f"{label} normal")
+    norm = float(np.linalg.norm(n))
+    if norm == 0.0:
+        raise KDInputError(f"{label}: the plane normal must be non-zero")
+    off = _target([offset_m], (1,), f"{label} offset_m")
+    return dataclasses.replace(ee, kind="plane", target=off, normal=n / norm, inequality=side == "below")

@@ -115,15 +115,16 @@ def _contiguous_vertices(data: bytes) -> np.ndarray | None:
         return None
     last = data.rfind(b"\nv ")
     end = data.find(b"\n", last + 1) if last >= 0 else data.find(b"\n")
-    block = data[first:end if end >= 0 else len(data)]
-    nlines = block.count(b"\n") + 1
-    if nlines != data.count(b"\nv ") + data.startswith(b"v "):
-        return None
+    end = end if end >= 0 else len(data)
+    block = data[first:end]
+    nlines = block.count(b"\n") + 1  # the block runs from the first v line to the last one
     tokens = block.split()
-    if len(tokens) != 4 * nlines or set(tokens[0::4]) != {b"v"}:
+    tags = tokens[0::4]
+    if len(tokens) != 4 * nlines or tags.count(b"v") != nlines:  # every line of the block is exactly "v x y z"
         return None
+    del tokens[0::4]
     try:
-        return np.array(tokens, dtype=object).reshape(-1, 4)[:, 1:].astype(np.float64)
+        return np.fromiter(map(float, tokens), dtype=np.float64, count=len(tokens)).reshape(-1, 3)
     except ValueError:
         return None
 

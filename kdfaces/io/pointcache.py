@@ -112,7 +112,7 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         times: frame times [s], shape (F,), strictly increasing.
         faces: triangles, shape (M, 3), indices into N (used when ``polygons`` is None).
         fps: frames (and time codes) per second; inferred from ``times`` if None.
-        prim_name: the mesh prim is ``/<prim_name>``.
+        prim_name: the mesh prim is ``/<prim_name>`` (made a valid USD identifier: "render-test" → "render_test").
         polygons: (counts (P,), corner vertex indices (Σ counts,)): the mesh's own polygons (quads stay quads).
         uvs: per-corner texture coordinates (Σ counts, 2), written as the face-varying primvar ``st``.
         unit_m: metres per stored unit (``metersPerUnit``; 0.01 writes centimetres).
@@ -136,8 +136,8 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
     if not (np.isfinite(unit_m) and unit_m > 0):
         raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
     x = x / unit_m
-    if not Sdf.Path.IsValidIdentifier(prim_name):
-        raise KDInputError(f"{p}: prim name {prim_name!r} is not a valid USD identifier")
+    if not Sdf.Path.IsValidIdentifier(prim_name):  # shot names like "render-test": "render_test"
+        prim_name = Tf.MakeValidIdentifier(str(prim_name) or "mesh")
     rate = infer_fps(t, fps=fps, where=str(p))
     codes = t * rate
     stage = Usd.Stage.CreateInMemory()

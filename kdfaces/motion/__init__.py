@@ -1,8 +1,23 @@
-"""Motion: keyframe curves, joint animation and the kinematic trajectory x_K(t) of a rig under an animation."""
+"""Motion: keyframe curves, joint animation (with root motion), inverse kinematics on joint chains, and the
+kinematic trajectory x_K(t) of a rig under an animation."""
 
 from .curves import INTERPOLATIONS, KeyframeCurve
-from .joints import JointDrive, JointTrajectory, SkeletonAnimation
-from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
+from .ik import (
+    NECK_CHAIN,
+    IKResult,
+    IKUnreachableError,
+    LookAtTarget,
+    PointTarget,
+    chain_frames,
+    direction_jacobian,
+    ik_solve,
+    point_jacobian,
+    solve_ik,
+)
+from .joints import JointDrive, JointTrajectory, SkeletonAnimation, joint_frames, root_translation
+from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack, scan_trajectory
 
-__all__ = ["INTERPOLATIONS", "KeyframeCurve", "JointDrive", "SkeletonAnimation", "JointTrajectory", "FaceAnimation",
-           "KinematicTrajectory", "ShapeTrack"]
+__all__ = ["INTERPOLATIONS", "KeyframeCurve", "JointDrive", "SkeletonAnimation", "JointTrajectory", "joint_frames",
+           "root_translation", "FaceAnimation", "KinematicTrajectory", "ShapeTrack", "NECK_CHAIN", "PointTarget",
+           "LookAtTarget", "IKResult", "IKUnreachableError", "chain_frames", "point_jacobian", "direction_jacobian",
+           "solve_ik", "ik_solve", "scan_trajectory"]

@@ -1,7 +1,9 @@
 """Joint animation: rotation curves that drive the rig's neck/head joints (evaluated through FK in
-:mod:`kdfaces.rig.skeleton`).
+:mod:`kdfaces.rig.skeleton`), and an optional root translation (walking) that moves the whole character.
 
-Angles are (yaw, pitch, roll) [rad] about the rig's (y, x, z) axes (y up, face looking +z).
+Angles are (yaw, pitch, roll) [rad] about the rig's (y, x, z) axes (y up, face looking +z). The root translation is
+kinematic: it is not part of the joint-angle state θ_K(t) that IKD corrects (paper §4.4: the posture changes, the
+walk does not).
 """
 
 from __future__ import annotations
@@ -12,10 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from ..rig.skeleton import HEAD_CHAIN_SPLIT, Skeleton
+from ..rig.skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms
 from .curves import KeyframeCurve
 
-__all__ = ["JointDrive", "SkeletonAnimation", "JointTrajectory"]
+__all__ = ["JointDrive", "SkeletonAnimation", "JointTrajectory", "root_translation", "joint_frames"]
 
 _TOKENS = itertools.count()
 
@@ -35,9 +37,24 @@ class JointDrive:
 
 @dataclass(frozen=True)
 class SkeletonAnimation:
-    """Joint rotations over time as a sum of :class:`JointDrive` contributions."""
+    """Joint rotations over time as a sum of :class:`JointDrive` contributions, plus an optional ``root`` curve:
+    a 3-channel (x, y, z) translation [m] of the whole character (every joint and every vertex), e.g. a walk."""
 
     drives: tuple[JointDrive, ...] = ()
+    root: KeyframeCurve | None = None
+
+    def __post_init__(self):
+        if self.root is not None and self.root.channels != 3:
+            raise KDInputError(f"root translation: expected a 3-channel (x, y, z) curve in metres, got "
+                               f"{self.root.channels} channels")
+
+    def root_translation(self, times, order: int = 2):
+        """The root translation and its derivatives at ``times`` (T,) → ``order + 1`` arrays (T, 3) [m, m/s, m/s²]
+        (zeros without a root curve)."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if self.root is None:
+            return tuple(np.zeros((len(t), 3)) for _ in range(order + 1))
+        return tuple(np.asarray(v, dtype=np.float64) for v in self.root.evaluate(t, order))
 
     def joint_angles(self, skeleton: Skeleton, times, order: int = 2):
         """Angles of every joint and their derivatives: ``order + 1`` arrays of shape (T, J, 3) [rad, rad/s, …]."""
@@ -90,3 +107,27 @@ class JointTrajectory:
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "joint trajectory times")
         return self.animation.joint_angles(self.skeleton, t, order)
+
+    def root_translation(self, times, order: int = 2):
+        """The kinematic root translation at ``times`` (T,) → ``order + 1`` arrays (T, 3) [m, m/s, m/s²]; not part
+        of the state (a corrected trajectory keeps its base's root motion)."""
+        return self.animation.root_translation(times, order)
+
+
+def root_translation(trajectory, times, order: int = 2):
+    """The root translation of a joint-angle trajectory (or of one wrapped by a correction) at ``times`` (T,) →
+    ``order + 1`` arrays (T, 3) [m, m/s, m/s²]; zeros when it has none."""
+    fn = getattr(trajectory, "root_translation", None)
+    if fn is None:
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        return tuple(np.zeros((len(t), 3)) for _ in range(order + 1))
+    return fn(times, order)
+
+
+def joint_frames(trajectory, times):
+    """FK of a joint-angle trajectory at ``times`` (T,) [s]: world transforms of every joint (G, Ġ, G̈), each
+    (T, J, 4, 4), from its angles ``trajectory.evaluate(times, 2)`` (corrected, when IKD corrected them) and its
+    kinematic root translation."""
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    check_finite(t, "joint frame times")
+    return joint_transforms(trajectory.skeleton, trajectory.evaluate(t, 2), root_translation(trajectory, t, 2))

@@ -21,7 +21,15 @@ from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
 
-__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning"]
+__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning", "scan_trajectory"]
+
+
+def scan_trajectory(trajectory, times, order: int = 2):
+    """``trajectory.evaluate(times, order)`` for a one-off pass over a shot: through the trajectory's ``scan`` when
+    it has one (it then leaves its sample cache alone), else its ``evaluate`` — any object with
+    ``evaluate(times, order)`` is a trajectory. ``times`` (T,) [s] → ``order + 1`` arrays ``(T, *state_shape)``."""
+    scan = getattr(trajectory, "scan", None)
+    return trajectory.evaluate(times, order) if scan is None else scan(times, order)
 
 _TOKENS = itertools.count()
 
@@ -85,11 +93,13 @@ class KinematicTrajectory:
     ``channel_map`` entry, the shape of that name, or both halves of a side-split shape (``browInnerUp`` drives
     ``browInnerUp_L`` and ``browInnerUp_R``). Channels left over are an error when ``strict`` (default: the
     animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them; shapes no
-    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use.
+    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use. ``joints``, a
+    joint-angle trajectory of the rig's skeleton (e.g. the KD head of :func:`kdfaces.articulated.kd_joint_trajectory`),
+    drives the skeleton instead of the animation's joint curves (the face then rides on it).
     """
 
     def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, channel_map: dict | None = None,
-                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20):
+                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20, joints=None):
         self.rig = rig
         self.animation = animation
         self.chunk = int(chunk)
@@ -122,6 +132,11 @@ class KinematicTrajectory:
         #: identifies the content for caches (rig and animation are immutable, so one token per trajectory)
         self.version = ("kinematic", next(_TOKENS))
         self._joints = None
+        if joints is not None:  # a joint-angle trajectory (e.g. a KD head) drives the skeleton instead
+            if rig.skeleton is None or tuple(getattr(joints, "state_shape", ())) != (len(rig.skeleton.names), 3):
+                raise KDInputError(f"joints: expected a joint-angle trajectory of rig {rig.name!r}'s skeleton")
+            self._joints = joints
+        self._joint_override = joints is not None
 
     @property
     def state_shape(self) -> tuple[int, int]:
@@ -179,8 +194,8 @@ class KinematicTrajectory:
         """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64.
 
         Samples are kept for re-use (KD windows, IKD sweeps and scrubbing re-read the same step grid) within
-        ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks. Either
-        way the memory does not grow with the number of times ever asked for.
+        ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks (as
+        :meth:`scan` does). Either way the memory does not grow with the number of times ever asked for.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "trajectory times")
@@ -189,8 +204,7 @@ class KinematicTrajectory:
         keys = np.round(t * 1e9).astype(np.int64)
         uniq, first_index, inverse = np.unique(keys, return_index=True, return_inverse=True)
         if len(uniq) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
-            parts = [self._evaluate_chunk(t[i:i + self.chunk]) for i in range(0, len(t), self.chunk)]
-            return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+            return self.scan(t, order)
         found = {}
         missing = []
         for k, i in zip(uniq.tolist(), first_index.tolist()):
@@ -212,6 +226,16 @@ class KinematicTrajectory:
         samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
         return tuple(samples[o] for o in range(order + 1))
 
+    def scan(self, times, order: int = 2):
+        """:meth:`evaluate` without the sample cache, in chunks: for one-off passes over a shot (a window estimate,
+        a bake that keeps its own rows) that would only push re-used samples out of it."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        check_finite(t, "trajectory times")
+        if order not in (0, 1, 2):
+            raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
+        parts = [self._evaluate_chunk(t[i:i + self.chunk])[:order + 1] for i in range(0, len(t), self.chunk)]
+        return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+
     def positions(self, times) -> np.ndarray:
         """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""
         return self.evaluate(times, order=0)[0]
@@ -222,7 +246,13 @@ class KinematicTrajectory:
         dy = self.rig.blend_offsets(w[1])
         ddy = self.rig.blend_offsets(w[2])
         skel = self.rig.skeleton
-        if skel is not None and self.animation.skeleton.drives:
+        if self._joint_override:
+            G = joint_transforms(skel, self._joints.evaluate(t, 2))
+            y, dy, ddy = skin(skel, G, y, dy, ddy)
+        elif skel is not None and self.animation.skeleton.drives:
             G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
+        if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
+            r = self.animation.skeleton.root_translation(t, 2)
+            y, dy, ddy = y + r[0][:, None], dy + r[1][:, None], ddy + r[2][:, None]
         return y, dy, ddy

@@ -86,10 +86,12 @@ def _mul(A, B):
     return a @ b, da @ b + a @ db, dda @ b + 2 * (da @ db) + a @ ddb
 
 
-def joint_transforms(skeleton: Skeleton, angles):
+def joint_transforms(skeleton: Skeleton, angles, root=None):
     """World transforms of every joint, as a triplet of (T, J, 4, 4) arrays (value, d/dt, d²/dt²).
 
-    ``angles`` is the triplet from :meth:`SkeletonAnimation.joint_angles` (order 2).
+    ``angles`` is the triplet from :meth:`SkeletonAnimation.joint_angles` (order 2). ``root``, optional, is the
+    triplet (r, ṙ, r̈) of a root translation [m, m/s, m/s²], each (T, 3), applied to every joint: G_j ← T(r) G_j
+    (root motion, e.g. walking; it moves the whole character and is not a joint angle).
     """
     th, dth, ddth = angles
     T, J, _ = th.shape
@@ -109,7 +111,12 @@ def joint_transforms(skeleton: Skeleton, angles):
             L.append(M)
         parent = skeleton.parents[j]
         G[j] = tuple(L) if parent < 0 else _mul(G[parent], tuple(L))
-    return tuple(np.stack([g[k] for g in G], axis=1) for k in range(3))
+    out = tuple(np.stack([g[k] for g in G], axis=1) for k in range(3))
+    if root is not None:
+        for k in range(3):
+            r = np.asarray(root[k], dtype=np.float64).reshape(T, 1, 3)
+            out[k][:, :, :3, 3] += r  # T(r)·G: the translation column only (rotations are unchanged)
+    return out
 
 
 def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):

@@ -1,8 +1,8 @@
 """Attachment of the hat to the animated head: Dirichlet nodes and the head joint's rigid motion.
 
 The head joint's world transform G(t) (4×4, rest pose = identity) and its exact time derivatives come from the
-joint-angle trajectory θ_K(t) through FK (:func:`kdfaces.rig.joint_transforms`); attached nodes follow
-x_a(t) = G(t)·X_a.
+joint-angle trajectory θ_K(t) and its kinematic root translation through FK
+(:func:`kdfaces.motion.joints.joint_frames`); attached nodes follow x_a(t) = G(t)·X_a.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from kdfaces.errors import KDInputError, check_finite
-from kdfaces.rig.skeleton import joint_transforms
+from kdfaces.motion.joints import joint_frames
 
 __all__ = ["HeadMotion", "head_motion", "joint_trajectory", "attached_nodes", "rigid_velocity_field"]
 
@@ -35,7 +35,7 @@ class HeadMotion:
         """G, Ġ, G̈ of the joint at ``times`` (T,) [s] → three (T, 4, 4) arrays [-, 1/s, 1/s²] (translation in m)."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         check_finite(t, "head motion times")
-        G = joint_transforms(self.skeleton, self.trajectory.evaluate(t, 2))
+        G = joint_frames(self.trajectory, t)
         return tuple(np.ascontiguousarray(g[:, self.index]) for g in G)
 
 

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from kdfaces.deprecation import warn_renamed
-from kdfaces.rig.skeleton import joint_transforms
+from kdfaces.motion.ik import point_jacobian
+from kdfaces.motion.joints import root_translation
 
 from ..geometry.tetmesh import Embedding
 from .attachment import head_motion, joint_trajectory
@@ -148,26 +149,15 @@ class HatSystem:
         at their current position (paper §4.4), with respect to the joint angles θ of the trajectory at
         ``time_s`` [s]: how IKD maps an error at the hat to a correction of the posture (eq. 5 through J⁺).
 
-        Central differences of FK (±1e-6 rad) over every angle; joints outside the head's chain give zero columns.
+        Analytic, column a × (p − r) for every Euler angle of the head and its ancestors
+        (:func:`kdfaces.motion.ik.point_jacobian`); other joints give zero columns. The root translation is
+        kinematic and not differentiated.
         """
         jt = joint_trajectory(trajectory)
-        skel = jt.skeleton
         theta = jt.evaluate([time_s], 0)[0][0]  # (J, 3)
-        nj = len(skel.names)
-        eps = 1e-6
-        pert = np.repeat(theta[None], 2 * nj * 3, axis=0)
-        for k in range(nj * 3):
-            pert[2 * k, k // 3, k % 3] += eps
-            pert[2 * k + 1, k // 3, k % 3] -= eps
-        zero = np.zeros_like(pert)
-        Gp = joint_transforms(skel, (np.concatenate([theta[None], pert]), np.concatenate([zero[:1], zero]),
-                                     np.concatenate([zero[:1], zero])))[0][:, skel.index(self.joint)]
+        root = root_translation(jt, [time_s], 0)[0][0]
         p = np.asarray(x, dtype=np.float64)[np.asarray(indices)]
-        inv = np.linalg.inv(Gp[0])
-        local = p @ inv[:3, :3].T + inv[:3, 3]  # (G, 3) in the head frame
-        moved = np.einsum("bij,nj->bni", Gp[1:, :3, :3], local) + Gp[1:, None, :3, 3]  # (2·3J, G, 3)
-        d = (moved[0::2] - moved[1::2]) / (2 * eps)  # (3J, G, 3)
-        return np.transpose(d, (1, 2, 0)).reshape(len(p), 3, nj, 3)
+        return point_jacobian(jt.skeleton, theta, self.joint, p, root=root)
 
     def automatic_window(self, trajectory, *, step_s: float | None = None, epsilon_m: float | None = None,
                          times=None):

@@ -94,7 +94,9 @@ def modal_basis(K, M, *, count: int = 6, rayleigh_alpha: float = 0.0, rayleigh_b
             lam, U = _dense_eigh(K, M)
             lam, U = lam[:r], U[:, :r]
         else:
-            lam, U = spla.eigsh(K, k=r, M=M, sigma=0.0, which="LM")
+            # a fixed (seeded) start vector: ARPACK's own is random, which changes the last bits run to run
+            v0 = np.random.default_rng(0).standard_normal(d)
+            lam, U = spla.eigsh(K, k=r, M=M, sigma=0.0, which="LM", v0=v0)
     except (RuntimeError, np.linalg.LinAlgError, ValueError) as e:
         raise KDInputError(f"modal analysis: K is singular or indefinite ({e}); is the object attached?") from None
     order = np.argsort(lam)

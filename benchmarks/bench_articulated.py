@@ -1,0 +1,105 @@
+"""Skeletal KD on an existing engine (issue 16): MuJoCo against Newton on the batched neck-chain KD, and the arm's KD
+state at δ = 0.3 s (the paper's 10 ms figure)."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+
+def _neck():
+    from kdfaces import KinematicTrajectory, load_default_rig
+    from kdfaces.articulated import neck_chain_model
+    from kdfaces.shots import demo_animation
+
+    rig = load_default_rig()
+    return neck_chain_model(rig), KinematicTrajectory(rig, demo_animation()).joints
+
+
+def bench_engine_steps(repeats: int):
+    """Engine steps only (zero torques): cost per world-step for B replicated neck chains."""
+    from kdfaces.articulated import make_engine
+
+    model, _ = _neck()
+    out = []
+    for name in ("mujoco", "newton"):
+        for B in (1, 64, 256):
+            try:
+                eng = make_engine(name, model, B, 0.005)
+            except Exception as e:  # noqa: BLE001 - an engine that cannot be built is a row saying so
+                out.append({"name": f"engine_step_{name}", "size": f"B={B} FAILED ({e})", "median_s": float("nan"),
+                            "rate": None, "unit": "-"})
+                continue
+            q = np.zeros((B, model.num_joints, 3))
+            eng.set_state(q, q)
+            tau = np.zeros_like(q)
+            walls = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                for _ in range(100):
+                    eng.step(tau)
+                walls.append((time.perf_counter() - t0) / 100)
+            med = statistics.median(walls)
+            out.append({"name": f"engine_step_{name}", "size": f"neck chain ({model.dofs} DOFs) × B={B} worlds",
+                        "median_s": med, "rate": 1e6 * med / B, "unit": "µs per world-step"})
+    return out
+
+
+def bench_neck_kd(repeats: int):
+    """The batched neck-chain KD: 64 windows of δ = 0.3 s at h = 0.01 s, 5 ms engine substeps, On the Beat control
+    (composite inertia, gravity compensation), each engine with its own damping treatment."""
+    from kdfaces.articulated import SkeletalSystem
+    from kdfaces.kd import simulate_kd
+
+    model, jt = _neck()
+    times = np.linspace(1.0, 5.5, 64)
+    out = []
+    for name in ("mujoco", "newton"):
+        system = SkeletalSystem(model, settle_time_s=0.15, engine=name, substep_s=0.005, parent_compensation=False)
+        walls, X = [], None
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            X = simulate_kd(system, jt, times, 0.3, step_s=0.01)
+            walls.append(time.perf_counter() - t0)
+        th = np.array([system.angles_from_points(x) for x in X]) if np.isfinite(X).all() else None
+        dev = np.degrees(np.abs(th - jt.evaluate(times, 0)[0])).max() if th is not None else float("inf")
+        how = "implicit joint damping" if name == "mujoco" else "explicit damping"
+        ok = "stable" if dev < 30 else "UNSTABLE (diverges)"
+        out.append({"name": f"neck_kd_{name}",
+                    "size": f"64 windows δ=0.3 s, 5 ms substeps, {how}: {ok}, max deviation from θ_K {dev:.3g}°",
+                    "median_s": statistics.median(walls), "rate": 1e3 * statistics.median(walls) / 64,
+                    "unit": "ms per KD state"})
+    return out
+
+
+def bench_arm_kd(repeats: int):
+    """The punch arm's KD state at δ = 0.3 s (paper §6.3: 10 ms): alone (scrubbing) and amortized over a batch."""
+    from kdfaces.articulated import SkeletalSystem, arm_chain_model
+    from kdfaces.articulated.punch import PUNCH_SETTLE_S, punch_trajectory
+    from kdfaces.kd import simulate_kd
+
+    model = arm_chain_model()
+    traj, t_i, _ = punch_trajectory(model)
+    system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, substep_s=0.005)
+    simulate_kd(system, traj, [t_i], 0.3, step_s=0.01)
+    walls = []
+    for _ in range(max(7, repeats)):
+        t0 = time.perf_counter()
+        simulate_kd(system, traj, [t_i], 0.3, step_s=0.01)
+        walls.append(time.perf_counter() - t0)
+    frames = traj.frame_times
+    bw = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        simulate_kd(system, traj, frames, 0.3, step_s=0.01)
+        bw.append((time.perf_counter() - t0) / len(frames))
+    return [{"name": "arm_kd_state", "size": "MuJoCo, 12 DOFs, δ=0.3 s, 5 ms substeps, one state", "median_s":
+             statistics.median(walls), "rate": 1e3 * statistics.median(walls), "unit": "ms per KD state"},
+            {"name": "arm_kd_state_batch", "size": f"MuJoCo, 12 DOFs, δ=0.3 s, batch of {len(frames)}",
+             "median_s": statistics.median(bw) * len(frames), "rate": 1e3 * statistics.median(bw),
+             "unit": "ms per KD state"}]
+
+
+BENCHMARKS = [("engine_steps", bench_engine_steps), ("neck_kd", bench_neck_kd), ("arm_kd", bench_arm_kd)]

@@ -1,0 +1,95 @@
+"""Production-size rigs: loading an OBJ folder (the 19k-vertex centimetre rig of ``scripts/build_production_rig.py``
+× 53 shapes), and the peak resident memory of baking a 10 s, 30 Hz stretch of the real Live Link Face capture on the
+19k and 27k rigs with ``kdfaces run`` (a fresh process each, so the peak is the bake's own)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TAKE = Path(os.environ.get("KDFACES_SHARED_DATA", ROOT.parent / "shared" / "data")) / "livelinkface" / "alex_rom_3.csv"
+BAKE_SHOT = """name = "bake"
+[rig]
+source = "{rig}"
+units = "cm"
+[animation]
+source = "{take}"
+start_s = 70.0
+end_s = 80.0
+fps = 30
+[dynamics]
+settle_time_s = {{ stiff_s = 0.2, loose_s = 0.45 }}
+damping_ratio = 0.3
+"""
+_MEASURE = """
+import json, resource, sys, time
+from kdfaces.cli import main
+t0 = time.perf_counter()
+rc = main(["run", sys.argv[1], "--out", sys.argv[2]])
+wall = time.perf_counter() - t0
+print(json.dumps({"rc": rc, "wall_s": wall, "peak_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+                  "summary": json.load(open(sys.argv[2] + "/summary.json")) if rc == 0 else None}))
+"""
+
+
+def _builder():
+    spec = importlib.util.spec_from_file_location("build_production_rig", ROOT / "scripts" / "build_production_rig.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.build_production_rig
+
+
+def bench_obj_folder_load(repeats: int):
+    from kdfaces.io.rigfiles import load_rig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        info = _builder()(Path(tmp) / "rig")
+        walls = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            rig = load_rig(Path(tmp) / "rig", units="cm")  # no cache: every repeat parses all 54 OBJ files
+            walls.append(time.perf_counter() - t0)
+    size = f"{rig.num_vertices / 1e3:.1f}k vertices × {len(rig.shape_names)} shapes, cm OBJ folder"
+    assert info["vertices"] == rig.num_vertices
+    return [{"name": "production_obj_folder_load", "size": size, "median_s": statistics.median(walls),
+             "rate": (len(rig.shape_names) + 1) / statistics.median(walls), "unit": "OBJ files/s"}]
+
+
+def bench_bake_peak_memory(repeats: int):
+    if not TAKE.exists():
+        return [{"name": f"production_bake_peak_rss skipped (capture not present at {TAKE})", "size": "-",
+                 "median_s": float("nan"), "rate": None, "unit": "-"}]
+    out = []
+    for target in (None, 27_000):
+        with tempfile.TemporaryDirectory() as tmp:
+            info = _builder()(Path(tmp) / "rig", target_vertices=target)
+            shot = Path(tmp) / "bake.toml"
+            shot.write_text(BAKE_SHOT.format(rig=Path(tmp) / "rig", take=TAKE))
+            runs = []
+            for k in range(max(1, min(repeats, 2))):  # each bake takes a while; the peak hardly varies
+                proc = subprocess.run([sys.executable, "-c", _MEASURE, str(shot), str(Path(tmp) / f"out{k}")],
+                                      capture_output=True, text=True,
+                                      env={**os.environ, "KDFACES_CACHE": str(Path(tmp) / "cache"),
+                                           "KDFACES_PROGRESS_DELAY_S": "1000"})
+                if proc.returncode != 0:
+                    raise RuntimeError(proc.stderr[-1000:])
+                runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+            s = runs[0]["summary"]
+            size = (f"{info['vertices'] / 1e3:.1f}k vertices, {s['frames']} frames (10 s at 30 Hz), "
+                    f"δ = {s['kd']['window_s']:.3f} s")
+            out.append({"name": "production_bake_peak_rss", "size": size,
+                        "median_s": statistics.median(r["wall_s"] for r in runs),
+                        "rate": max(r["peak_bytes"] for r in runs) / 2**30, "unit": "GiB peak RSS (whole run)"})
+    return out
+
+
+BENCHMARKS = [("production_obj_folder_load", bench_obj_folder_load),
+              ("production_bake_peak_rss", bench_bake_peak_memory)]

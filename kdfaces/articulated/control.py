@@ -1,0 +1,137 @@
+"""On the Beat control (Allen et al. 2007, §4): per-hinge PD torques whose gains come from a time in seconds.
+
+Every control step, for every hinge i of the chain (root first):
+
+1. the moment of inertia m_i about the hinge axis s_i of the composite of all out-board links (§4.2–4.3, eq. 5 and
+   7; :meth:`ArticulatedModel.hinge_moments`), or of the hinge's own link only ("local", the baseline of §6 Fig. 8);
+2. critically damped gains from the time t̂ (eq. 4): λ = t̂/n, τ = m/λ²(θ̂ − θ) + 2ζm/λ(ω̂ − ω);
+3. parent-torque compensation (§4.4, eq. 8–10): the angular acceleration a_i = Σ_j (τ_j/m_j) s_j that the in-board
+   hinges' torques give the subtree, projected on s_i and turned into the torque m_i (a_i·s_i) that carries the
+   hinge's out-board links along;
+4. gravity compensation (the torque that holds the out-board composite against gravity), and torque limits
+   (``|τ| ≤ τ_max`` per hinge; the number of clipped hinge-steps is counted).
+
+The number of time constants n in t̂: On the Beat writes n = −1/ln f for removing the fraction f (0.9) of the error
+in t̂ (``timing="paper"``, n = 9.49). A critically damped step from rest, e(t) = e₀(1 + t/λ)e^{−t/λ}, then removes
+90 % already at 0.41·t̂ (and 99.9 % at t̂). ``timing="critical"`` (the default here) takes the n with
+(1 + n)e^{−n} = 1 − f (n = 3.89 for f = 0.9), so that 90 % of a step is reached exactly at t̂, which is what the
+paper's keyframe timing means. Both are available; the face model (:mod:`kdfaces.dynamics.gains`) keeps the
+paper's n.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from ..errors import KDInputError
+from .model import ArticulatedModel
+
+__all__ = ["TIMINGS", "INERTIAS", "time_constants", "OnTheBeat"]
+
+TIMINGS = ("critical", "paper")
+INERTIAS = ("composite", "local")
+
+
+def time_constants(fraction: float = 0.9, timing: str = "critical") -> float:
+    """n, the number of time constants λ in the time t̂ = nλ that removes the fraction ``fraction`` of an error:
+    "paper" n = −1/ln f (On the Beat §4.1 as printed), "critical" the root of (1 + n)e^{−n} = 1 − f (a critically
+    damped step from rest is at the fraction f exactly at t̂)."""
+    if not 0 < fraction < 1:
+        raise KDInputError(f"settle fraction: expected a number in (0, 1), got {fraction}")
+    if timing == "paper":
+        return -1.0 / np.log(fraction)
+    if timing == "critical":
+        return float(brentq(lambda n: (1 + n) * np.exp(-n) - (1 - fraction), 1e-9, 100.0, xtol=1e-14))
+    raise KDInputError(f"timing {timing!r} unknown; expected one of {TIMINGS}")
+
+
+@dataclass
+class OnTheBeat:
+    """The controller. ``torques(q, qd, target_q, target_qd, settle_s)`` → τ (B, J, 3) [N·m].
+
+    Attributes:
+        model: the articulated model.
+        inertia: "composite" (On the Beat) or "local" (the joint's own link only).
+        timing: "critical" or "paper" (see the module docstring); fraction: f (0.9).
+        damping_ratio: ζ (1 is eq. 4, critically damped).
+        parent_compensation: §4.4 on or off; gravity_compensation: on or off.
+        clipped: hinge-steps whose torque hit its limit so far.
+    """
+
+    model: ArticulatedModel
+    inertia: str = "composite"
+    timing: str = "critical"
+    fraction: float = 0.9
+    damping_ratio: float = 1.0
+    parent_compensation: bool = True
+    gravity_compensation: bool = True
+
+    def __post_init__(self):
+        if self.inertia not in INERTIAS:
+            raise KDInputError(f"inertia {self.inertia!r} unknown; expected one of {INERTIAS}")
+        if not (np.isfinite(self.damping_ratio) and self.damping_ratio > 0):
+            raise KDInputError(f"damping_ratio: expected a positive number, got {self.damping_ratio}")
+        self.n = time_constants(self.fraction, self.timing)
+        sk = self.model.skeleton
+        # P[h, g] = 1 when hinge g is in-board of hinge h (accelerates h's subtree, eq. 8): every hinge of every
+        # ancestor joint and the earlier hinges of h's own joint; hinges ordered root first, (yaw, pitch, roll)
+        J = self.model.num_joints
+        P = np.zeros((3 * J, 3 * J))
+        for j in range(J):
+            anc = []
+            k = sk.parents[j]
+            while k >= 0:
+                anc.append(k)
+                k = sk.parents[k]
+            for c in range(3):
+                for a in anc:
+                    P[3 * j + c, 3 * a: 3 * a + 3] = 1.0
+                P[3 * j + c, 3 * j: 3 * j + c] = 1.0
+        self._inboard = P
+        self.clipped = 0
+
+    def gains(self, q: np.ndarray, settle_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(kp (B, J, 3) [N·m/rad], kd (B, J, 3) [N·m·s/rad], m (B, J, 3) [kg·m²]) at poses ``q`` for times t̂
+        ``settle_s`` [s] (scalar, (J, 3) or (B, J, 3)): eq. 4 with the moments of eq. 7."""
+        _, m, _ = self.model.terms(np.asarray(q, dtype=np.float64), local=self.inertia == "local")
+        return self._gains(m, settle_s) + (m,)
+
+    def _gains(self, m, settle_s):
+        lam = np.broadcast_to(np.asarray(settle_s, dtype=np.float64), m.shape) / self.n
+        if not (lam > 0).all():
+            raise KDInputError("settle time: expected positive seconds")
+        return m / lam**2, 2.0 * self.damping_ratio * m / lam
+
+    def torques(self, q, qd, target_q, target_qd, settle_s, *, split_damping: bool = False):
+        """Hinge torques (B, J, 3) [N·m] towards (θ̂, ω̂) = (``target_q``, ``target_qd``) (B, J, 3) in the time
+        ``settle_s`` [s] from the state (θ, ω) = (``q``, ``qd``) (eq. 4, 7–10, gravity compensation, limits).
+
+        With ``split_damping`` it returns (τ + k_d·ω, k_d (B, J, 3)): an engine that integrates joint damping
+        implicitly (MuJoCo's Euler) applies −k_d·ω at the new velocity itself, which keeps the stiff modes of light
+        links between heavy ones (the neck under the head) stable at large steps."""
+        q, qd = np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+        axes, m, grav = self.model.terms(q, local=self.inertia == "local")
+        kp, kd = self._gains(m, settle_s)
+        tau = kp * (np.asarray(target_q) - q) + kd * (np.asarray(target_qd) - qd)
+        if self.parent_compensation:
+            # τ_h = PD_h + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ_g/m_g) s_g (eq. 8–10): linear in τ, and P is strictly
+            # lower triangular, so (I − diag(m) N diag(1/m)) τ = PD with N[h, g] = P[h, g] (s_h·s_g) is solved by
+            # forward substitution (one batched triangular solve; the paper's single root-to-leaf pass)
+            B = len(q)
+            s = axes.reshape(B, -1, 3)
+            mm = m.reshape(B, -1)
+            N = self._inboard[None] * np.einsum("bhi,bgi->bhg", s, s)
+            A = np.eye(N.shape[1])[None] - mm[:, :, None] * N / mm[:, None, :]
+            tau = np.linalg.solve(A, tau.reshape(B, -1, 1)).reshape(tau.shape)
+        if self.gravity_compensation:
+            tau = tau + grav
+        lim = self.model.torque_limits[None]
+        over = np.abs(tau) > lim
+        if over.any():
+            self.clipped += int(over.sum())
+            tau = np.clip(tau, -lim, lim)
+        # implicit damping: the engine applies −k_d·ω at the end of the step, so the explicit −k_d·ω comes out here
+        return (tau + kd * qd, kd) if split_damping else tau

@@ -1,0 +1,332 @@
+"""``kdfaces punch``: the paper's relaxed punch (§4.1, Fig. 4) and On the Beat's Fig. 8 timing claim, measured.
+
+The MakeHuman right arm (clavicle, upper arm, forearm, hand; :func:`~kdfaces.articulated.arm_chain_model`) throws a
+keyframed punch: guard, a fist straight ahead at shoulder height at t_i, back to guard. Its poses come from IK
+(:mod:`kdfaces.motion.ik`) from hand-set seeds. Tracked with a relaxed tension (t̂ = 0.12 s), the skeletal KD fist
+lags and misses the target at t_i; IKD with an end-effector constraint on the fist (eq. 4–5, through J⁺ of the arm's
+chain Jacobian at the KD pose) corrects θ_K(t) with a bell so the KD fist hits it; a velocity-constraint variant
+(eq. 13–14, §4.3's tap) adds that the fist is at rest when it gets there.
+
+The timing experiment drives the arm through a dozen conductor-like poses (the paper's §5.2 script durations) with
+On the Beat's control (composite inertia, parent-torque and gravity compensation) and with "locally" critically
+damped gains (the joint's own link only, gravity compensation, no parent-torque compensation; §6 Fig. 8),
+and reports for each keyframe how late or early the arm reaches 90 % of the transition (from the state it had when
+the keyframe became the target, holding that target) and how far it overshoots.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import KDInputError
+from .chains import arm_chain_model
+from .control import OnTheBeat
+from .engines import DEFAULT_ENGINE, make_engine
+from .model import ArticulatedModel, chain_axes
+from .system import SkeletalSystem
+
+__all__ = ["PUNCH_T_I_S", "PUNCH_SETTLE_S", "CONDUCTOR_DURATIONS_S", "punch_trajectory", "conductor_keyframes",
+           "timing_experiment", "run_punch", "TIMING_MIN_STEP_DEG"]
+
+#: The punch lands at t_i [s]; the relaxed tension t̂ [s] of the KD arm.
+PUNCH_T_I_S = 0.55
+PUNCH_SETTLE_S = 0.12
+#: Durations [s] of the conductor-like sequence (On the Beat §5.2's script: 0.3, 0.3, 0.3, 0.4, 0.545, ...).
+CONDUCTOR_DURATIONS_S = (0.3, 0.3, 0.3, 0.4, 0.545, 0.545, 0.3, 0.3, 0.4, 0.4, 0.545, 0.545)
+
+_ARM = ("upperarm", "forearm", "hand")
+_GUARD_SEED_DEG = [[0, 0, 0], [0, -30, 42], [0, -90, 0], [0, 0, 0]]
+_HIT_SEED_DEG = [[0, 0, 0], [0, -80, 42], [0, 40, 0], [0, 0, 0]]
+
+
+def _pose(model: ArticulatedModel, seed_deg, fist_target) -> np.ndarray:
+    """The arm pose (J, 3) [rad] that puts the fist at ``fist_target`` [m], by DLS IK from a seed it leans to."""
+    from ..motion.ik import PointTarget, ik_solve
+
+    seed = np.radians(np.asarray(seed_deg, dtype=np.float64))
+    j, fist = model.point("fist")
+    return ik_solve(model.skeleton, seed, [PointTarget(model.skeleton.names[j], fist, fist_target)], dofs=_ARM,
+                    rest=seed, rest_gain=0.3, max_iterations=500)
+
+
+def punch_trajectory(model: ArticulatedModel | None = None, *, t_i: float = PUNCH_T_I_S, fps: float = 100.0):
+    """The keyframed punch: (θ_K(t) as a :class:`~kdfaces.motion.JointTrajectory`, t_i [s], the target (3,) [m]).
+
+    Guard until t_i − 0.25 s, the fist at the target (0.6 m ahead of the chest at shoulder height) at t_i, guard
+    again 0.3 s later (eased keys: the kinematic fist stops on the target)."""
+    from ..motion.curves import KeyframeCurve
+    from ..motion.joints import JointDrive, JointTrajectory, SkeletonAnimation
+
+    model = model or arm_chain_model()
+    target = np.array([-0.13, 0.50, 0.60])
+    guard = _pose(model, _GUARD_SEED_DEG, np.array([-0.12, 0.52, 0.22]))
+    hit = _pose(model, _HIT_SEED_DEG, target)
+    times = [0.0, t_i - 0.25, t_i, t_i + 0.3, t_i + 0.75]
+    keys = np.stack([guard, guard, hit, guard, guard])  # (5, J, 3)
+    drives = tuple(JointDrive(KeyframeCurve.create(times, keys[:, j], interpolation="hermite",
+                                                   tangents=np.zeros_like(keys[:, j])), {name: 1.0})
+                   for j, name in enumerate(model.skeleton.names))
+    traj = JointTrajectory(model.skeleton, SkeletonAnimation(drives), start_s=0.0, end_s=times[-1], fps=fps)
+    return traj, float(t_i), target
+
+
+def conductor_keyframes(model: ArticulatedModel | None = None):
+    """A dozen conductor-like poses (a four-beat pattern in front of the body, twice, the fist's path from IK) with
+    the durations :data:`CONDUCTOR_DURATIONS_S`: (start pose (J, 3), [(pose (J, 3), time [s])])."""
+    model = model or arm_chain_model()
+    beats = [np.array(p) for p in ([-0.14, 0.38, 0.40], [-0.02, 0.48, 0.36], [-0.34, 0.50, 0.38],
+                                    [-0.18, 0.66, 0.42])]
+    start = _pose(model, _GUARD_SEED_DEG, np.array([-0.12, 0.52, 0.22]))
+    out, t, seed = [], 0.0, np.degrees(start)
+    for k, dur in enumerate(CONDUCTOR_DURATIONS_S):
+        pose = _pose(model, seed, beats[k % 4] + np.array([0.0, 0.0, 0.04 * (k // 4)]))
+        t += dur
+        out.append((pose, t))
+        seed = np.degrees(pose)
+    return start, out
+
+
+#: Hinges whose step is at least this many degrees count in a keyframe's timing (the summary reports 5°, 10°, 20°).
+TIMING_MIN_STEP_DEG = 10.0
+
+
+def timing_experiment(model: ArticulatedModel | None = None, *, step_s: float = 0.002, engine: str = DEFAULT_ENGINE,
+                      min_step_deg=(5.0, TIMING_MIN_STEP_DEG, 20.0), horizon: float = 4.0) -> dict:
+    """On the Beat Fig. 8, measured: the conductor sequence with composite and with local gains.
+
+    For each keyframe the arm's state when the keyframe becomes the target is copied into a side simulation that
+    holds that target for ``horizon`` × its duration. Every hinge whose step is at least a threshold of
+    ``min_step_deg`` gets the time it reaches 90 % of its step; the keyframe's timing error [s] is their mean minus
+    the keyframe's duration (> 0: late; a hinge that never gets there counts the whole horizon, a lower bound,
+    counted in ``never_reached``). The overshoot is the largest excursion past the target of those hinges, relative
+    to their step. Returns, per controller, arrays per threshold (keys of ``by_threshold``) and summaries for
+    :data:`TIMING_MIN_STEP_DEG`."""
+    model = model or arm_chain_model()
+    start, keys = conductor_keyframes(model)
+    thresholds = tuple(float(v) for v in np.atleast_1d(min_step_deg))
+    out = {}
+    for inertia in ("composite", "local"):
+        # On the Beat (composite inertia, parent-torque and gravity compensation) against the inertia-scaled PD it
+        # improves on ([ZH02, ZMCF05]): the link's own inertia, gravity compensation, no parent-torque compensation
+        ctrl = OnTheBeat(model, inertia=inertia, parent_compensation=inertia == "composite")
+        main = make_engine(engine, model, 1, step_s)
+        side = make_engine(engine, model, 1, step_s)
+        main.set_state(start[None], np.zeros((1, *start.shape)))
+        per = {th: {"err": [], "over": [], "never": 0} for th in thresholds}
+        trace_t, trace_q, t, prev_t = [], [], 0.0, 0.0
+        for pose, t_k in keys:
+            dur = t_k - prev_t
+            q0, qd0 = main.state()
+            step = pose - q0[0]
+            moving = np.abs(step) > 1e-9
+            side.set_state(q0, qd0)
+            n = int(round(horizon * dur / step_s))
+            t90 = np.full(step.shape, np.nan)
+            peak = np.full(step.shape, -np.inf)
+            for k in range(n):
+                _drive(side, ctrl, pose, dur)
+                frac = (side.state()[0][0] - q0[0]) / np.where(moving, step, 1.0)
+                t90[moving & np.isnan(t90) & (frac >= 0.9)] = (k + 1) * step_s
+                peak = np.maximum(peak, frac)
+            reached = np.where(np.isnan(t90), n * step_s, t90)
+            for th in thresholds:
+                big = np.abs(step) >= np.radians(th)
+                per[th]["never"] += int(np.isnan(t90[big]).sum())
+                per[th]["err"].append(float(reached[big].mean()) - dur if big.any() else 0.0)
+                per[th]["over"].append(float((peak[big] - 1.0).max()) if big.any() else 0.0)
+            for _ in range(int(round(dur / step_s))):
+                _drive(main, ctrl, pose, dur)
+                t += step_s
+                trace_t.append(t)
+                trace_q.append(main.state()[0][0])
+            prev_t = t_k
+        by = {th: {"timing_error_s": np.array(v["err"]), "overshoot": np.array(v["over"]),
+                   "mean_abs_timing_error_s": float(np.abs(v["err"]).mean()), "never_reached": v["never"]}
+              for th, v in per.items()}
+        main_th = TIMING_MIN_STEP_DEG if TIMING_MIN_STEP_DEG in by else thresholds[0]
+        out[inertia] = {**by[main_th], "by_threshold": by, "times": np.array(trace_t), "angles": np.array(trace_q),
+                        "clipped": ctrl.clipped}
+    out["keyframe_times_s"] = np.array([t for _, t in keys])
+    out["start"] = start
+    out["poses"] = np.array([p for p, _ in keys])
+    return out
+
+
+def _drive(engine, ctrl: OnTheBeat, pose: np.ndarray, dur: float) -> None:
+    q, qd = engine.state()
+    if getattr(engine, "implicit_damping", False):
+        tau, kd = ctrl.torques(q, qd, pose[None], np.zeros_like(q), dur, split_damping=True)
+        engine.step(tau, kd)
+    else:
+        engine.step(ctrl.torques(q, qd, pose[None], np.zeros_like(q), dur))
+
+
+def _segments(model: ArticulatedModel, q: np.ndarray) -> np.ndarray:
+    """Polyline (J + 2, 3) [m] of the arm at pose (J, 3): chest centre, the pivots, the fist."""
+    _, _, piv = chain_axes(model.skeleton, q[None])
+    fist = model.points_world(q[None], ["fist"])[0]
+    chest = np.array([0.0, model.skeleton.positions[0, 1], model.skeleton.positions[0, 2]])
+    return np.vstack([chest, piv[0], fist])
+
+
+def _arm_panel(ax, model, q, target, *, title=None, color="#1f5fa8", ghost=None):
+    """Side (z horizontal, y up) and front (x) views of the arm on one axes: the side view is offset to the left."""
+    for pose, col, lw, alpha in ([(ghost, "0.6", 1.5, 0.8)] if ghost is not None else []) + [(q, color, 3.0, 1.0)]:
+        s = _segments(model, pose)
+        ax.plot(s[:, 2], s[:, 1], "-o", color=col, lw=lw, ms=3, alpha=alpha)  # side view
+        ax.plot(s[:, 0] - 0.55, s[:, 1], "-o", color=col, lw=lw, ms=3, alpha=alpha)  # front view, shifted left
+    for dx, xz in ((0.0, 2), (-0.55, 0)):
+        ax.plot(target[xz] + dx, target[1], "x", color="#d62728", ms=10, mew=2.5)
+    fist = model.points_world(q[None], ["fist"])[0, 0]
+    ax.plot(fist[2], fist[1], "o", color="#ff7f0e", ms=7)
+    ax.set_xlim(-1.1, 0.72)
+    ax.set_ylim(0.12, 0.72)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title:
+        ax.set_title(title, fontsize=8)
+
+
+def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, substep_s: float = 0.005,
+              width_s: float = 0.12, update: str = "paper", movie: bool = True) -> dict:
+    """Run the punch and the timing experiment; write filmstrip_punch.png, convergence.png, timing.png,
+    movie.mp4 (unless ``movie`` is False) and summary.json to ``out``. Returns the summary.
+
+    The IKD solve of the punch uses ``update`` ("paper": eq. 5 with a fresh trial every iteration, the paper's §6.3
+    convergence claim; "secant" also works) to a 0.01 mm tolerance; the summary reports the error after 6
+    iterations."""
+    from ..ikd import GaussianBasis, end_effector_constraint, solve_ikd, velocity_constraint
+    from ..io.summary import write_summary
+    from ..kd import simulate_kd
+    from ..viz.figures import save_figure, subplots
+
+    out = Path(out)
+    model = arm_chain_model()
+    system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, engine=engine, substep_s=substep_s)
+    traj, t_i, target = punch_trajectory(model)
+    h = 1.0 / traj.fps
+    fist = system.point_index("fist")
+    frames = traj.frame_times
+    # KD cost, the paper's figure: one state at δ = 0.3 s on its own (scrubbing), and amortized over a batch
+    walls = []
+    for _ in range(7):
+        t0 = time.perf_counter()
+        simulate_kd(system, traj, [t_i], window_s, step_s=h)
+        walls.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    X_kd = simulate_kd(system, traj, frames, window_s, step_s=h)
+    batch_ms = 1e3 * (time.perf_counter() - t0) / len(frames)
+    miss_m = float(np.linalg.norm(X_kd[np.argmin(np.abs(frames - t_i)), fist] - target))
+    c = end_effector_constraint(t_i, target, [fist], GaussianBasis(t_i, width_s), num_vertices=X_kd.shape[1],
+                                label="fist on target")
+    res = solve_ikd(system, traj, [c], window_s=window_s, step_s=h, update=update, tolerance_m=1e-5,
+                    max_iterations=50)
+    hist = res.history[:, 0]
+    X_ikd = simulate_kd(system, res.trajectory, frames, window_s, step_s=h)
+    # velocity variant (eq. 13–14, §4.3's tap): the fist reaches the target at t_i *and* is at rest there
+    cv = velocity_constraint(t_i, np.zeros(3), GaussianBasis(t_i, width_s), group=[fist], num_vertices=X_kd.shape[1],
+                             label="fist at rest")
+    res_v = solve_ikd(system, traj, [c, cv], window_s=window_s, step_s=h, update=update, tolerance_m=1e-5,
+                      tolerance_mps=1e-3, max_iterations=50)
+    timing = timing_experiment(model, engine=engine)
+    comp, loc = timing["composite"], timing["local"]
+
+    # figures
+    K = traj.evaluate(frames, 0)[0]
+    kd_q = np.array([system.angles_from_points(x) for x in X_kd])
+    ikd_q = np.array([system.angles_from_points(x) for x in X_ikd])
+    cols = [t_i - 0.25, t_i - 0.1, t_i, t_i + 0.1, t_i + 0.3]
+    idx = [int(np.argmin(np.abs(frames - t))) for t in cols]
+    fig, axes = subplots(3, len(cols), figsize=(3.0 * len(cols), 3.4 * 3 * 0.36 + 1.2))
+    for r, (label, Q) in enumerate((("kinematic", K), ("KD (relaxed)", kd_q), ("KD after IKD", ikd_q))):
+        for ci, k in enumerate(idx):
+            _arm_panel(axes[r, ci], model, Q[k], target, ghost=None if r == 0 else K[k],
+                       title=f"{label}, t = {frames[k]:.2f} s" + (" (t_i)" if abs(frames[k] - t_i) < 1e-9 else ""))
+    fig.suptitle("The relaxed punch (paper Fig. 4): side view right, front view left; grey = kinematic, x = target",
+                 fontsize=10)
+    fig.tight_layout()
+    outputs = [save_figure(fig, out / "filmstrip_punch.png")]
+    fig, ax = subplots(figsize=(6.4, 3.8))
+    ax.semilogy(np.arange(len(hist)), np.maximum(hist, 1e-12), "o-", label="position (eq. 4–5)")
+    ax.semilogy(np.arange(len(res_v.history)), np.maximum(res_v.history[:, 0], 1e-12), "s-",
+                label="position + velocity: position [m]")
+    ax.semilogy(np.arange(len(res_v.history)), np.maximum(res_v.history[:, 1], 1e-12), "^-",
+                label="position + velocity: velocity (eq. 13–14) [m/s]")
+    ax.axhline(1e-4, color="k", lw=0.8, ls="--", label="0.1 mm")
+    ax.set_xlabel("IKD iteration")
+    ax.set_ylabel("fist error [m]")
+    ax.set_title("Punch IKD convergence")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    outputs.append(save_figure(fig, out / "convergence.png"))
+    fig, (a1, a2) = subplots(2, 1, figsize=(7.2, 5.6))
+    kt = timing["keyframe_times_s"]
+    w = 0.012
+    for (name, d), off in ((("composite", comp), -w), (("local", loc), w)):
+        a1.bar(kt + off, 1e3 * d["timing_error_s"], width=2 * w, label=name)
+        a2.bar(kt + off, 100 * d["overshoot"], width=2 * w, label=name)
+    a1.axhline(0.0, color="k", lw=0.8)
+    a1.set_ylabel("reached 90 % late [ms]")
+    a1.set_title(f"On the Beat Fig. 8: keyframe timing, hinges moving ≥ {TIMING_MIN_STEP_DEG:g}°\n(mean |error| "
+                 f"composite {1e3 * comp['mean_abs_timing_error_s']:.0f} ms, local "
+                 f"{1e3 * loc['mean_abs_timing_error_s']:.0f} ms)", fontsize=9)
+    a1.legend(fontsize=8)
+    a2.set_ylabel("overshoot [% of step]")
+    a2.set_xlabel("keyframe time [s]")
+    fig.tight_layout()
+    outputs.append(save_figure(fig, out / "timing.png"))
+    if movie:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        from ..viz.movie import side_by_side, write_movie
+
+        frames_img = []
+        for k in range(0, len(frames), 4):
+            fig, axes = subplots(1, 3, figsize=(9.0, 3.0))
+            for a, (label, Q) in zip(axes, (("kinematic", K), ("KD", kd_q), ("KD after IKD", ikd_q))):
+                _arm_panel(a, model, Q[k], target, ghost=None if label == "kinematic" else K[k],
+                           title=f"{label}  {frames[k]:.2f} s")
+            fig.tight_layout()
+            canvas = FigureCanvasAgg(fig)  # an Agg canvas for this figure only (no pyplot, no backend switch)
+            canvas.draw()
+            frames_img.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+        outputs.append(write_movie(out / "movie.mp4", [side_by_side([f]) for f in frames_img], fps=25.0))
+    ratio = loc["mean_abs_timing_error_s"] / max(comp["mean_abs_timing_error_s"], 1e-12)
+    summary = {
+        "skeleton": {"engine": engine, "joints": list(model.skeleton.names), "dofs": model.dofs,
+                     "masses_kg": model.masses.round(3).tolist()},
+        "kd": {"window_s": window_s, "substep_s": substep_s, "settle_time_s": PUNCH_SETTLE_S,
+               "ms_per_state": 1e3 * float(np.median(walls)), "ms_per_state_batch": batch_ms,
+               "batch": len(frames), "miss_before_ikd_m": miss_m},
+        "ikd": {"converged": bool(res.converged), "iterations": int(res.iterations),
+                "error_after_6_m": float(hist[min(6, len(hist) - 1)]), "error_after_m": float(hist[-1]),
+                "error_before_m": float(hist[0]), "wall_s": float(res.wall_s), "t_i_s": t_i, "update": update,
+                "kd_states": int(res.kd_states),
+                "velocity": {"converged": bool(res_v.converged), "iterations": int(res_v.iterations),
+                             "position_error_after_m": float(res_v.history[-1, 0]),
+                             "error_before_mps": float(res_v.history[0, 1]),
+                             "error_after_mps": float(res_v.history[-1, 1]), "time_s": t_i}},
+        "timing": {"keyframe_time_error_s": {"composite": comp["mean_abs_timing_error_s"],
+                                             "local": loc["mean_abs_timing_error_s"]},
+                   "ratio_local_over_composite": ratio,
+                   "min_step_deg": TIMING_MIN_STEP_DEG,
+                   "per_keyframe_s": {"composite": comp["timing_error_s"].tolist(),
+                                      "local": loc["timing_error_s"].tolist()},
+                   "overshoot": {"composite": comp["overshoot"].tolist(), "local": loc["overshoot"].tolist()},
+                   "never_reached": {"composite": comp["never_reached"], "local": loc["never_reached"]},
+                   "by_min_step_deg": {f"{th:g}": {
+                       "composite_s": comp["by_threshold"][th]["mean_abs_timing_error_s"],
+                       "local_s": loc["by_threshold"][th]["mean_abs_timing_error_s"],
+                       "ratio": loc["by_threshold"][th]["mean_abs_timing_error_s"]
+                       / max(comp["by_threshold"][th]["mean_abs_timing_error_s"], 1e-12)}
+                       for th in comp["by_threshold"]}},
+        "outputs": [str(p.relative_to(out)) for p in outputs],
+    }
+    if not np.isfinite(hist).all():
+        raise KDInputError("punch: the IKD history is not finite")
+    write_summary(out, summary)
+    return summary

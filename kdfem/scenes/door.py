@@ -1,0 +1,503 @@
+"""``kdfem door``: the floppy hat under the door (paper §4.4, Fig. 7-d), as a shot file users can write.
+
+The default head wears the demo hat and walks forward (+z) at about 1.2 m/s — a root translation with a small
+vertical bob, kinematic and never corrected — through a door whose lintel is a little lower than the hat's tip.
+The scene
+
+1. simulates the hat's KD states over the pass and finds the collision: t_i is the first frame at which the tip is
+   inside the door's depth and above the lintel (the paper's "the hat would hit the top of the door frame at t_i");
+2. solves IKD with a point constraint on the tip at t_i (the tip's KD position moved straight down to the lintel
+   minus a margin): the corrected state is the joint-angle trajectory θ_K(t) of the neck and head, the error maps
+   to it through J⁺ of the chain Jacobian at the tip's KD position fixed in the head frame (§4.4, eq. 4–5);
+3. then solves the clearance over the whole pass (beyond the paper): every hat vertex under the door stays below
+   the lintel minus a margin, by active-set rounds (:mod:`kdfaces.ikd.clearance`);
+4. checks the result independently: a fresh hat system recomputes every KD state of the pass, one by one.
+
+Shot file (TOML; every key optional except where noted, defaults are the built-in scene ``door.toml``)::
+
+    name = "door"
+    [rig]         source = "default"
+    [hat]         surface = "default"  # or a closed surface mesh (.obj/.ply/.stl/.off) in metres, on the head
+                  youngs_pa = 3000.0, poisson = 0.3, density_kg_m3 = 150.0, rayleigh_alpha = 1.0, rayleigh_beta = 0.01
+                  edge_length_fac = 0.09, envelope_fac = 0.004, attach_distance_m = 0.02
+    [walk]        speed_mps = 1.2, accelerate_s = 0.5, bob_m = 0.012, step_hz = 1.8, end_s = 2.6, fps = 100
+    [door]        lintel_y_m = 1.012, front_z_m = 1.32, depth_m = 0.15, width_m = 0.9
+    [kd]          window_s = 0.568, step_s = 0.01
+    [[constraints]]  kind = "point"      # the tip at t_i: point = "tip" | { surface_vertex = i } | { node = i }
+                     time_s = "collision"  # or seconds;  target = "below_lintel" or { point_m = [x, y, z] }
+                     margin_m = 0.005, width_s = 0.2, curve = "gaussian"
+    [[constraints]]  kind = "below"      # a point below the lintel minus margin_m at time_s (an inequality)
+    [[constraints]]  kind = "clearance"  # every surface vertex under the door, over the pass (or start_s/end_s)
+                     margin_m = 0.005, width_s = 0.2, adds = "point"  # or "plane": what a violation adds
+    [solver]      update = "secant", step_scale = 1.0, tolerance_m = 1e-5, max_iterations = 20, max_rounds = 8
+    [output]      movie = true, movie_fps = 25, filmstrip_columns = 5
+
+Paths are relative to the shot file. Errors name the file and the dotted field.
+"""
+
+from __future__ import annotations
+
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from kdfaces import defaults
+from kdfaces.errors import KDInputError
+
+__all__ = ["DOOR_SHOT", "DoorShot", "DoorScene", "load_door_shot", "walk_root_curve", "build_door_scene",
+           "run_door"]
+
+#: The built-in door scene.
+DOOR_SHOT = Path(__file__).resolve().parent / "door.toml"
+
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
+class _Table(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class _Rig(_Table):
+    source: str = "default"
+
+
+class _Hat(_Table):
+    surface: str = "default"
+    youngs_pa: Positive = 3.0e3
+    poisson: Annotated[float, Field(gt=-1, lt=0.5)] = 0.3
+    density_kg_m3: Positive = 150.0
+    rayleigh_alpha: NonNegative = defaults.RAYLEIGH_ALPHA
+    rayleigh_beta: NonNegative = defaults.RAYLEIGH_BETA
+    edge_length_fac: Annotated[float, Field(gt=0, lt=1)] = defaults.HAT_EDGE_LENGTH_FAC
+    envelope_fac: Annotated[float, Field(gt=0, lt=0.1)] = defaults.HAT_ENVELOPE_FAC
+    attach_distance_m: Positive = 0.02
+
+
+class _Walk(_Table):
+    speed_mps: Finite = 1.2
+    accelerate_s: Positive = 0.5
+    bob_m: NonNegative = 0.012
+    step_hz: Positive = 1.8
+    end_s: Positive = 2.6
+    fps: Positive = 100.0
+
+
+class _Door(_Table):
+    lintel_y_m: Finite = 1.012
+    front_z_m: Finite = 1.32
+    depth_m: Positive = 0.15
+    width_m: Positive = 0.9
+
+
+class _KD(_Table):
+    window_s: Positive = defaults.HAT_WINDOW_S
+    step_s: Positive = defaults.HAT_STEP_S
+
+
+class _PointRef(_Table):
+    surface_vertex: Annotated[int, Field(ge=0)] | None = None
+    node: Annotated[int, Field(ge=0)] | None = None
+
+
+class _Target(_Table):
+    point_m: Vec3
+
+
+class _Constraint(_Table):
+    kind: Literal["point", "below", "clearance"]
+    point: Literal["tip"] | _PointRef = "tip"
+    time_s: Finite | Literal["collision"] = "collision"
+    target: Literal["below_lintel"] | _Target = "below_lintel"
+    margin_m: NonNegative = 0.005
+    width_s: Positive = 0.2
+    curve: Literal["gaussian", "poly", "asymmetric"] = "gaussian"
+    start_s: Finite | None = None
+    end_s: Finite | None = None
+    adds: Literal["point", "plane"] = "point"
+    label: str | None = None
+
+
+class _Solver(_Table):
+    update: Literal["paper", "secant"] = defaults.SOLVER_UPDATE
+    step_scale: Annotated[float, Field(gt=0, le=1)] = defaults.STEP_SCALE
+    tolerance_m: Positive = defaults.TOLERANCE_M
+    max_iterations: Annotated[int, Field(ge=1)] = defaults.MAX_ITERATIONS
+    max_rounds: Annotated[int, Field(ge=1)] = 8
+
+
+class _Output(_Table):
+    movie: bool = True
+    movie_fps: Positive = 25.0
+    filmstrip_columns: Annotated[int, Field(ge=2, le=12)] = 5
+
+
+class DoorShot(_Table):
+    """A parsed door shot file (see the module docstring for its tables and defaults)."""
+
+    name: str = "door"
+    rig: _Rig = _Rig()
+    hat: _Hat = _Hat()
+    walk: _Walk = _Walk()
+    door: _Door = _Door()
+    kd: _KD = _KD()
+    constraints: list[_Constraint] = [_Constraint(kind="point"), _Constraint(kind="clearance")]
+    solver: _Solver = _Solver()
+    output: _Output = _Output()
+
+
+def load_door_shot(path=None) -> tuple[DoorShot, Path]:
+    """Read and validate a door shot file (default :data:`DOOR_SHOT`); returns (shot, the file's folder).
+
+    One :class:`KDInputError` names the file, the dotted field and what was expected."""
+    from kdfaces.shots.schema import dotted
+
+    p = Path(DOOR_SHOT if path is None else path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise KDInputError(f"{p}: door shot file not found") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise KDInputError(f"{p}: not a readable TOML file ({e})") from None
+    try:
+        shot = DoorShot.model_validate(data)
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise KDInputError(f"{p}: {dotted(err['loc'])}: {err['msg']} (got {err.get('input')!r})") from None
+    if not shot.constraints:
+        raise KDInputError(f"{p}: constraints: expected at least one constraint")
+    return shot, p.parent
+
+
+def walk_root_curve(*, speed_mps: float, accelerate_s: float, bob_m: float, step_hz: float, end_s: float,
+                    key_step_s: float = 0.05):
+    """The walk's root translation (x, y, z) [m] as a Hermite :class:`~kdfaces.motion.KeyframeCurve` with exact
+    tangents at keys every ``key_step_s`` [s]: forward (+z) from rest to ``speed_mps`` over ``accelerate_s``
+    (constant acceleration), then steady; a vertical bob of ``bob_m`` peak to peak at ``step_hz``, faded in with
+    the speed."""
+    from kdfaces.motion.curves import KeyframeCurve
+
+    t = np.arange(0.0, end_s + key_step_s - 1e-9, key_step_s)
+    v, ta, w = speed_mps, accelerate_s, 2 * np.pi * step_hz
+    z = np.where(t < ta, 0.5 * v * t * t / ta, v * (t - 0.5 * ta))
+    dz = np.where(t < ta, v * t / ta, v)
+    ramp, dramp = np.clip(t / ta, 0.0, 1.0), np.where(t < ta, 1.0 / ta, 0.0)
+    y = -0.5 * bob_m * (1 - np.cos(w * t)) * ramp
+    dy = -0.5 * bob_m * (w * np.sin(w * t) * ramp + (1 - np.cos(w * t)) * dramp)
+    return KeyframeCurve.create(t, np.c_[0 * t, y, z], interpolation="hermite", tangents=np.c_[0 * t, dy, dz],
+                                where="walk root")
+
+
+@dataclass
+class DoorScene:
+    """Everything the door scene simulates and draws.
+
+    Attributes:
+        shot: the parsed shot; rig: the face rig; system: the hat's KD system; surface_faces: (F, 3) of the
+            embedded render surface; joints: θ_K(t), the joint trajectory with the walk's root translation.
+        points: (V, 4) tet-corner indices and (V, 4) barycentric weights of the render surface's vertices.
+        tip: the surface vertex used as the tip; window_s, step_s: KD window and step [s].
+    """
+
+    shot: DoorShot
+    rig: object
+    system: object
+    surface_faces: np.ndarray
+    joints: object
+    points: tuple[np.ndarray, np.ndarray]
+    tip: int
+    window_s: float
+    step_s: float
+
+    def surface(self, X: np.ndarray) -> np.ndarray:
+        """Render-surface points (..., V, 3) [m] of node positions (..., N, 3)."""
+        return np.einsum("...vkd,vk->...vd", np.asarray(X)[..., self.points[0], :], self.points[1])
+
+    def in_door(self, P: np.ndarray) -> np.ndarray:
+        """Whether points (..., 3) [m] are inside the door's depth (along z)."""
+        d = self.shot.door
+        return (P[..., 2] >= d.front_z_m) & (P[..., 2] <= d.front_z_m + d.depth_m)
+
+    def head(self, angles: np.ndarray, times) -> np.ndarray:
+        """The rig's neutral face posed by joint angles (T, J, 3) [rad] at ``times`` (T,) with the walk → (T, N, 3)."""
+        from kdfaces.motion.joints import root_translation
+        from kdfaces.rig.skeleton import joint_transforms, skin
+
+        th = np.asarray(angles, dtype=np.float64)
+        z = np.zeros_like(th)
+        G = joint_transforms(self.rig.skeleton, (th, z, z))
+        y = np.broadcast_to(self.rig.neutral, (len(th), *self.rig.neutral.shape))
+        return skin(self.rig.skeleton, G, y)[0] + root_translation(self.joints, times, 0)[0][:, None]
+
+
+def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
+    from ..fem.attachment import attached_nodes
+    from ..fem.default_hat import SHIPPED_HAT_TETS
+    from ..fem.materials import Material
+    from ..fem.model import FEMModel
+    from ..fem.system import HatSystem
+    from ..geometry.hat import christmas_hat
+    from ..geometry.tetmesh import embed_surface, load_surface, tetrahedralize_cached
+
+    h = shot.hat
+    if h.surface == "default":
+        surf = christmas_hat()
+        v, f = np.asarray(surf.vertices, dtype=np.float64), np.asarray(surf.faces, dtype=np.int64)
+    else:
+        v, f = load_surface(base / h.surface)
+    mesh, _ = tetrahedralize_cached(v, f, edge_length_fac=h.edge_length_fac, envelope_fac=h.envelope_fac,
+                                    coarsen=True, where="hat.surface", cache_dir=cache_dir,
+                                    shipped=[SHIPPED_HAT_TETS])
+    material = Material(youngs=h.youngs_pa, poisson=h.poisson, density=h.density_kg_m3)
+    att = attached_nodes(mesh.nodes, rig.neutral, distance=h.attach_distance_m)
+    model = FEMModel(mesh, material, att, rayleigh_alpha=h.rayleigh_alpha, rayleigh_beta=h.rayleigh_beta)
+    emb = embed_surface(mesh, v)
+    return HatSystem(model, embedding=emb, threads=2), f, (mesh.tets[emb.tet], emb.weights)
+
+
+def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None) -> DoorScene:
+    """The rig, the hat's KD system and the walking joint trajectory of a door shot."""
+    from kdfaces.io.rigfiles import load_rig
+    from kdfaces.motion.joints import JointTrajectory, SkeletonAnimation
+
+    src = shot.rig.source
+    rig = load_rig(src if src == "default" else base / src)
+    if rig.skeleton is None or "head" not in rig.skeleton.names:
+        raise KDInputError(f"rig.source: {src!r} has no head joint to wear the hat")
+    w = shot.walk
+    if shot.kd.step_s > 1.0 / w.fps + 1e-12 or abs(round(1.0 / (w.fps * shot.kd.step_s)) * shot.kd.step_s * w.fps
+                                                   - 1.0) > 1e-6:
+        raise KDInputError(f"kd.step_s: {shot.kd.step_s} s must divide the frame interval 1/{w.fps:g} s")
+    root = walk_root_curve(speed_mps=w.speed_mps, accelerate_s=w.accelerate_s, bob_m=w.bob_m, step_hz=w.step_hz,
+                           end_s=w.end_s)
+    joints = JointTrajectory(rig.skeleton, SkeletonAnimation(root=root), start_s=0.0, end_s=w.end_s, fps=w.fps)
+    system, faces, points = _hat_system(shot, rig, base, cache_dir)
+    rest_surface = np.einsum("vkd,vk->vd", system.rest_equilibrium[points[0]], points[1])
+    return DoorScene(shot=shot, rig=rig, system=system, surface_faces=np.asarray(faces), joints=joints,
+                     points=points, tip=int(np.argmax(rest_surface[:, 1])), window_s=shot.kd.window_s,
+                     step_s=shot.kd.step_s)
+
+
+def _pass_interval(scene: DoorScene) -> tuple[float, float]:
+    """[first, last] frame [s] at which any render-surface point of the rigidly carried hat is inside the door."""
+    t = scene.joints.frame_times
+    P = scene.surface(scene.system.observe_kinematic(scene.joints, t))
+    inside = scene.in_door(P).any(axis=1)
+    if not inside.any():
+        raise KDInputError("door: the hat never passes under the lintel (check door.front_z_m and walk.end_s)")
+    k = np.flatnonzero(inside)
+    return float(t[k[0]]), float(t[k[-1]])
+
+
+def _point(scene: DoorScene, ref, where: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """(node indices, weights, label) of a constrained point."""
+    n = scene.system.model.mesh.num_nodes
+    if ref == "tip":
+        v = scene.tip
+    elif ref.node is not None:
+        if ref.node >= n:
+            raise KDInputError(f"{where}.point.node: {ref.node} is not a node (the hat has {n})")
+        return np.array([ref.node]), np.array([1.0]), f"node {ref.node}"
+    elif ref.surface_vertex is not None:
+        v = ref.surface_vertex
+        if v >= len(scene.points[0]):
+            raise KDInputError(f"{where}.point.surface_vertex: {v} is not a surface vertex (the hat has "
+                               f"{len(scene.points[0])})")
+    else:
+        raise KDInputError(f"{where}.point: expected \"tip\", {{ surface_vertex = i }} or {{ node = i }}")
+    idx, w = scene.points[0][v], scene.points[1][v]
+    keep = w != 0
+    return idx[keep], w[keep] / w[keep].sum(), ("tip" if ref == "tip" else f"surface vertex {v}")
+
+
+def _constraints(scene: DoorScene, pass_s, kd_pass):
+    """The solver's constraints from the shot's tables, and t_i of the first point constraint."""
+    from kdfaces.ikd.bases import make_basis
+    from kdfaces.ikd.clearance import clearance_constraint
+    from kdfaces.ikd.constraints import end_effector_constraint, plane_constraint
+
+    shot, lintel = scene.shot, scene.shot.door.lintel_y_m
+    times, X = kd_pass
+    n = scene.system.model.mesh.num_nodes
+    out, t_i = [], None
+    for k, c in enumerate(shot.constraints):
+        where = f"constraints[{k}]"
+        if c.kind == "clearance":
+            start = pass_s[0] if c.start_s is None else c.start_s
+            end = pass_s[1] if c.end_s is None else c.end_s
+            out.append(clearance_constraint([0, 1, 0], lintel, start_s=start, end_s=end, margin_m=c.margin_m,
+                                            slab_axis=[0, 0, 1], slab_m=(shot.door.front_z_m, shot.door.front_z_m
+                                                                         + shot.door.depth_m), points=scene.points,
+                                            width_s=c.width_s, curve=c.curve, target=c.adds,
+                                            label=c.label or "clearance"))
+            continue
+        idx, w, name = _point(scene, c.point, where)
+        if c.time_s == "collision":
+            p = np.einsum("tkd,k->td", X[:, idx], w)
+            hit = scene.in_door(p) & (p[:, 1] > lintel)
+            if not hit.any():
+                raise KDInputError(f"{where}.time_s: the {name} never hits the lintel in the pass; give a time in "
+                                   "seconds or lower door.lintel_y_m")
+            t = float(times[np.argmax(hit)])
+        else:
+            t = float(c.time_s)
+        basis = make_basis(c.curve, t, width_s=c.width_s)
+        label = c.label or f"{name} {'under the lintel' if c.kind == 'point' else 'below the lintel'}"
+        if c.kind == "below":
+            out.append(plane_constraint(t, [0, 1, 0], lintel - c.margin_m, idx, basis, weights=w, num_vertices=n,
+                                        label=label))
+        else:
+            if c.target == "below_lintel":
+                from kdfaces.kd import simulate_kd
+
+                x = simulate_kd(scene.system, scene.joints, [t], scene.window_s, step_s=scene.step_s)[0]
+                target = w @ x[idx]
+                target[1] = lintel - c.margin_m
+            else:
+                target = np.asarray(c.target.point_m, dtype=np.float64)
+            out.append(end_effector_constraint(t, target, idx, basis, weights=w, num_vertices=n, label=label))
+        if t_i is None:
+            t_i = t
+    return out, t_i
+
+
+def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie_fps: float | None = None,
+             progress: bool = False) -> dict:
+    """Run a door shot (default :data:`DOOR_SHOT`) and write its outputs to ``out``: filmstrip_door.png,
+    clearance.png, corrections.png, movie.mp4 (unless ``movie`` is False or the shot's output.movie is) and
+    summary.json. ``movie_fps`` [1/s] overrides the shot's rate of the movie and the over-time plots. Returns the
+    summary."""
+    from kdfaces.ikd.solver import solve_ikd
+    from kdfaces.io.summary import write_summary
+    from kdfaces.kd import simulate_kd
+
+    from ..fem.system import HatSystem
+    from .door_render import clearance_plot, correction_plot, door_filmstrip, door_movie
+
+    out = Path(out)
+    parsed, base = load_door_shot(shot)
+    scene = build_door_scene(parsed, base, cache_dir=cache_dir if cache_dir is not None else out / ".cache")
+    system, joints, h, window = scene.system, scene.joints, scene.step_s, scene.window_s
+    lintel = parsed.door.lintel_y_m
+    pass_s = _pass_interval(scene)
+    fps = joints.fps
+    pass_t = joints.frame_times[(joints.frame_times >= pass_s[0] - 1e-9) & (joints.frame_times <= pass_s[1] + 1e-9)]
+    X_before = np.asarray(simulate_kd(system, joints, pass_t, window, step_s=h))
+    constraints, t_i = _constraints(scene, pass_s, (pass_t, X_before))
+    solver = parsed.solver
+    result = solve_ikd(system, joints, constraints, window_s=window, step_s=h, update=solver.update,
+                       step_scale=solver.step_scale, tolerance_m=solver.tolerance_m,
+                       max_iterations=solver.max_iterations, max_rounds=solver.max_rounds)
+    corrected = result.trajectory
+
+    # independent check: a fresh system, every KD state of the pass simulated on its own
+    fresh = HatSystem(system.model, embedding=system.embedding)
+    t0 = time.perf_counter()
+    X_after = np.concatenate([simulate_kd(fresh, corrected, [t], window, step_s=h) for t in pass_t])
+    check_s = time.perf_counter() - t0
+    clear = next((c for c in constraints if getattr(c, "kind", "") == "clearance"), None)
+    from kdfaces.ikd.clearance import clearance_constraint
+
+    door_clear = clear or clearance_constraint([0, 1, 0], lintel, start_s=pass_s[0], end_s=pass_s[1], margin_m=0.0,
+                                               slab_axis=[0, 0, 1], slab_m=(parsed.door.front_z_m,
+                                                                            parsed.door.front_z_m
+                                                                            + parsed.door.depth_m),
+                                               points=scene.points)
+    clearance_before = door_clear.clearance_m(X_before)
+    clearance_after = door_clear.clearance_m(X_after)
+    tip_errs = []
+    for c in (c for c in constraints if getattr(c, "kind", "") in ("end_effector", "plane")):
+        k = np.flatnonzero(np.abs(pass_t - c.time_s) < 1e-9)
+        x = X_after[k[0]] if len(k) else simulate_kd(fresh, corrected, [c.time_s], window, step_s=h)[0]
+        tip_errs.append(c.error(c.residual(x, None, h)))
+    tip_err = max(tip_errs) if tip_errs else None  # the shot's own point constraints, from the independent states
+
+    # locality: angles outside the correction's support, KD states beyond support + δ
+    t_all = joints.frame_times
+    theta_K = joints.evaluate(t_all, 0)[0]
+    theta = corrected.evaluate(t_all, 0)[0]
+    corr_deg = np.degrees(theta - theta_K)
+    lo, hi = (result.correction.support() if result.correction is not None else (np.inf, -np.inf))
+    outside = (t_all < lo - 1e-9) | (t_all > hi + 1e-9)
+
+    # frames for the movie and the plots (every frame at the movie rate)
+    show_movie = parsed.output.movie if movie is None else movie
+    stride = max(1, int(round(fps / (movie_fps or parsed.output.movie_fps))))
+    t_movie = t_all[::stride]
+    K_movie = system.observe_kinematic(joints, t_movie)
+    B_movie = np.asarray(simulate_kd(system, joints, t_movie, window, step_s=h))
+    A_movie = np.asarray(simulate_kd(system, corrected, t_movie, window, step_s=h))
+    from kdfaces.kd import window_steps
+
+    late = t_movie - window_steps(window, h) * h > hi + 1e-9  # the whole KD window after the support
+    early = t_movie < lo - 1e-9
+    unchanged = late | early
+
+    # filmstrip columns around the collision
+    ncol = parsed.output.filmstrip_columns
+    t_ref = t_i if t_i is not None else 0.5 * (pass_s[0] + pass_s[1])
+    cols = np.linspace(pass_s[0] - 0.15, pass_s[1] + 0.1, ncol)
+    cols[np.argmin(np.abs(cols - t_ref))] = t_ref
+    cols = np.round(np.clip(cols, 0.0, joints.end) * fps) / fps
+    K_cols = system.observe_kinematic(joints, cols)
+    B_cols = np.asarray(simulate_kd(system, joints, cols, window, step_s=h))
+    A_cols = np.asarray(simulate_kd(system, corrected, cols, window, step_s=h))
+    heads_K = scene.head(joints.evaluate(cols, 0)[0], cols)
+    heads_A = scene.head(corrected.evaluate(cols, 0)[0], cols)
+    outputs = [
+        door_filmstrip(out / "filmstrip_door.png", scene, cols,
+                       {"kinematic": (heads_K, K_cols), "KD before IKD": (heads_K, B_cols),
+                        "KD after IKD": (heads_A, A_cols)}, t_i=t_i),
+        clearance_plot(out / "clearance.png", scene, t_movie, {"kinematic": K_movie, "KD before IKD": B_movie,
+                                                                "KD after IKD": A_movie}, pass_s, t_i, door_clear,
+                       {"KD before IKD": (pass_t, X_before), "KD after IKD (independent check)": (pass_t, X_after)}),
+        correction_plot(out / "corrections.png", scene, t_all, corr_deg, t_i, (lo, hi)),
+    ]
+    if show_movie:
+        outputs.append(door_movie(out / "movie.mp4", scene, t_movie,
+                                  {"kinematic": (joints, K_movie), "KD before IKD": (joints, B_movie),
+                                   "KD after IKD": (corrected, A_movie)}, fps=fps / stride, progress=progress))
+    rounds_hist = result.extra.get("round_histories", [result.history])
+    summary = {
+        "name": parsed.name,
+        "door": {"lintel_y_m": lintel, "front_z_m": parsed.door.front_z_m, "depth_m": parsed.door.depth_m,
+                 "pass_start_s": pass_s[0], "pass_end_s": pass_s[1]},
+        "walk": {"speed_mps": parsed.walk.speed_mps, "bob_m": parsed.walk.bob_m, "fps": fps},
+        "kd": {"window_s": window, "step_s": h},
+        "hat": {"nodes": system.model.mesh.num_nodes, "tets": system.model.mesh.num_tets,
+                "surface_vertices": len(scene.points[0])},
+        "ikd": {
+            "converged": bool(result.converged),
+            "reason": result.reason,
+            "iterations": int(result.iterations),
+            "active_set_rounds": int(result.active_set_rounds),
+            "wall_s": float(result.wall_s),
+            "t_i_s": t_i,
+            "tip_error_m": tip_err,
+            "clearance_before_m": float(clearance_before.min()),
+            "clearance_after_m": float(clearance_after.min()),
+            "max_correction_deg": float(np.abs(corr_deg).max()),
+            "update": result.update,
+            "constraints": [c.name for c in result.constraints],
+            "clearance_per_round_m": [float(v) for v in result.clearance_m],
+            "iterations_per_round": [len(hh) - 1 for hh in rounds_hist],
+            "kd_states": int(result.kd_states),
+        },
+        "independent_check": {"states": len(pass_t), "wall_s": check_s,
+                              "clearance_after_m": float(clearance_after.min()), "tip_error_m": tip_err},
+        "locality": {"support_s": [float(lo), float(hi)],
+                     "max_angle_change_outside_support_deg": float(np.abs(corr_deg[outside]).max(initial=0.0)),
+                     "max_hat_change_outside_support_plus_window_m":
+                         float(np.abs(A_movie[unchanged] - B_movie[unchanged]).max(initial=0.0)),
+                     "frames_checked": int(unchanged.sum())},
+        "outputs": [str(p.relative_to(out)) for p in outputs],
+    }
+    write_summary(out, summary)
+    return summary

@@ -173,7 +173,7 @@ def _dask(workers: int | None, client):
     if client is None:
         n = workers or os.cpu_count() or 1
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               silence_logs=logging.WARNING)
+                               silence_logs=logging.ERROR)
         client = Client(cluster, set_as_default=False)
         client.register_plugin(_quiet_plugin())
     try:

@@ -220,14 +220,22 @@ def bake_chunk(payload: BakePayload, index: int, store_path: str) -> dict:
 
 def quiet_worker_plugin():
     """A Dask worker plugin for the bake's own local cluster: Warp starts quietly in each worker process (no banner,
-    no "no CUDA driver" warning, no kernel-cache lines), as it does in the command-line process."""
+    no "no CUDA driver" warning, no kernel-cache lines), as it does in the command-line process; and a worker ignores
+    Ctrl-C (a terminal sends it to the whole process group): the client that owns the cluster stops it."""
     from distributed import WorkerPlugin
 
     class QuietWarp(WorkerPlugin):
         name = "kdfaces-quiet-warp"
 
         def setup(self, worker):
+            import signal
+
             import warp as wp
+
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            except ValueError:  # not the main thread: leave the handler as it is
+                pass
 
             wp.config.quiet = True
             wp.config.log_level = wp.LOG_WARNING

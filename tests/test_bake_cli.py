@@ -76,3 +76,14 @@ def test_ctrl_c_keeps_the_store_and_the_next_bake_resumes(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())["bake"]
     assert (summary["skipped_chunks"], summary["computed_chunks"], summary["workers"]) == (38, 0, 0)
     assert (out / "plain.pc2").read_bytes() == first
+
+
+def test_bad_bake_options_are_one_line_before_any_work(tmp_path, capsys):
+    out = tmp_path / "out"
+    for extra, message in ((["--chunk-frames", "0"], "chunk_frames: expected a whole number ≥ 1, got 0"),
+                           (["--workers", "-1"], "workers: expected a whole number ≥ 1, got -1")):
+        capsys.readouterr()
+        assert main(["bake", str(DEMO), "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no output folder, no store

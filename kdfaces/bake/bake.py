@@ -319,10 +319,11 @@ def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_byt
         if getattr(final, "base", None) is not traj or getattr(final, "bump", None) is not None:
             raise KDNumericalError("IKD: the solved trajectory is not the shot's trajectory plus one correction")
         correction = final.correction
-    # the trajectory bake a worker keeps between chunks: a few chunks' rows, not the take's (bounded memory)
+    # the trajectory bake a worker keeps between chunks: the rows of about two chunks' windows, not the take's, so
+    # a worker's memory does not grow with the take (rows are x_K, ẋ_K at grid times: re-baking gives the same)
     n = window_steps(window, h) if not isinstance(window, str) else 0
     row_bytes = 4 * 3 * 4 * model.num_vertices
-    max_bake = max(4 * (k + n + 1), 256) * row_bytes if n else None
+    max_bake = 2 * (k + n + 1) * row_bytes if n else None
     payload = payload_type(shot_text=text, shot_path=str(path), inputs=fingerprints[0], code=fingerprints[1],
                            window_s=window, step_s=h, correction=correction, frames=len(shot.animation.frame_times),
                            vertices=model.num_vertices, max_memory_bytes=max_memory_bytes, max_bake_bytes=max_bake,

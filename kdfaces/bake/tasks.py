@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import KDInputError
 from .store import STORE_FORMAT, BakeStore
 
-__all__ = ["BakePayload", "bake_chunk", "code_fingerprint", "input_fingerprint", "WORKER_CACHE_SIZE"]
+__all__ = ["BakePayload", "bake_chunk", "code_fingerprint", "input_fingerprint", "peak_rss_bytes", "WORKER_CACHE_SIZE"]
 
 #: Shots a worker process keeps rebuilt (system, trajectory) at once.
 WORKER_CACHE_SIZE = 2
@@ -215,7 +215,21 @@ def bake_chunk(payload: BakePayload, index: int, store_path: str) -> dict:
     return {"index": int(index), "lo": lo, "hi": hi, "host": socket.gethostname(), "pid": os.getpid(),
             "setup_s": baked.setup_s if built else 0.0, "open_s": opened, "kd_s": c2 - c1, "write_s": c3 - c2,
             "start": start, "stop": time.time(),
-            "peak_rss_bytes": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024}
+            "peak_rss_bytes": peak_rss_bytes()}
+
+
+def peak_rss_bytes() -> int:
+    """This process's peak resident memory [bytes]: ``VmHWM`` of /proc/self/status where there is one (the peak of
+    this program's own address space; ``ru_maxrss`` would carry over the peak of the process that spawned a worker,
+    since Linux keeps it across exec), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
 
 def quiet_worker_plugin():

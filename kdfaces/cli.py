@@ -169,7 +169,8 @@ def _demo(args) -> dict:
 
     rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
     return run_demo(args.out, rig=rig, threads=args.threads, exports=args.export,
-                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True)
+                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True,
+                    offset_grid=args.offset_grid > 0, offset_grid_size=max(args.offset_grid, 1))
 
 
 def add_rig_units_option(parser) -> None:
@@ -238,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_rig_units_option(demo)
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
+    demo.add_argument("--offset-grid", type=int, default=3, metavar="N",
+                      help="N x N hat-tip targets of the Fig. 9 analog (default 3, about 30 s; 0 skips it)")
     add_export_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)

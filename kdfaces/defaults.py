@@ -11,7 +11,7 @@ from .errors import KDInputError
 __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "SHAPE_MATCHING_ALPHA", "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
     "CLUSTER_RINGS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S",
-    "WIDTH_S", "CURVE", "PINV_DAMPING", "SOLVER_UPDATE",
+    "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY", "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
     "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
     "default_step", "user_cache_dir",
@@ -51,6 +51,11 @@ WIDTH_S = 0.3
 CURVE = "gaussian"
 #: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹ of end-effector constraints, relative to ‖J‖².
 PINV_DAMPING = 1e-3
+#: Geodesic radius [m] over which a subset, velocity or end-effector correction falls off to zero outside its
+#: vertices (0: the paper's sharp lift, the correction on the constrained vertices only).
+FALLOFF_M = 0.05
+#: Smoothness energy of that falloff: "biharmonic" (LᵀM⁻¹L, C¹) or "harmonic" (−L).
+LIFT_ENERGY = "biharmonic"
 #: "secant" (batched, ours) or "paper" (Algorithm 1).
 SOLVER_UPDATE = "secant"
 #: Scale s of each update (0.8 is the paper's "scaled" variant).

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from kdfaces.cli import main
@@ -38,7 +39,42 @@ def test_demo_kd_and_ikd_summary(demo_run):
     for c in ikd["constraints"]:
         assert c["error_after_m"] <= (1e-3 if c["kind"] == "velocity" else 1e-5)
     assert ikd["independent_check_max_error_m"] == max(c["error_after_m"] for c in ikd["constraints"])
-    assert {"ikd_convergence.png", "ikd_offset_grid.png", "kd_error.png"} <= set(s["outputs"])
+    assert {"ikd_convergence.png", "ikd_offset_grid.png", "kd_error.png", "heatmap.png"} <= set(s["outputs"])
+    assert {"movie.mp4", "movie.gif"} & set(s["outputs"])
+    seams = {c["label"]: c["seam_ratio"] for c in ikd["constraints"]}
+    assert all(0.0 <= v <= 1.0 for v in seams.values())
+    assert seams["chin"] < 0.35  # 1.0 with the correction on the jaw only (a tear at its boundary)
+    assert ikd["lift_factorizations"] == 3  # chin, lips, brows: once each (the pose lifts as before)
+
+
+def test_demo_offset_grid_spans_decades(demo_run):
+    """Fig. 9 analog on the hat tip: the error after six iterations spans at least two decades."""
+    _, s = demo_run
+    grid = s["ikd"]["offset_grid"]
+    errs = np.array([e for v in grid["errors_m"].values() for e in np.ravel(v)])
+    finite = errs[np.isfinite(errs) & (errs > 0)]
+    assert np.log10(finite.max() / finite.min()) >= 2
+    assert set(grid["errors_m"]) == {"paper (Algorithm 1)", "secant (ours)"}
+
+
+def test_demo_movie_shows_the_kd_motion(demo_run):
+    """The movie has every shot frame, and its KD panel (coloured by |x_KD − x_K|) is hot on some frames and quiet
+    on others, while the kinematic panel never is."""
+    import imageio.v2 as imageio
+
+    out, s = demo_run
+    path = out / next(p for p in s["outputs"] if p.startswith("movie."))
+    frames = [np.asarray(f)[..., :3] for f in imageio.get_reader(path)]
+    assert len(frames) == s["frames"]
+    width = (frames[0].shape[1] - 2 * 4) // 3  # three panels, 4 px gaps
+    def hot(img):  # orange to dark red of the heat map: little blue for its red (skin keeps B ≈ 0.6 R)
+        r, b = img[..., 0].astype(float), img[..., 2].astype(float)
+        return int(((r > 100) & (b < 0.4 * r)).sum())
+    body = slice(30, frames[0].shape[0] - 16)  # below the label, above the timeline bar
+    kin = [hot(f[body, :width]) for f in frames]
+    kd = [hot(f[body, width + 4: 2 * width + 4]) for f in frames]
+    assert max(kin) < 20  # (a few pixels of compression noise at most)
+    assert max(kd) > 200 and min(kd) < 20
 
 
 def test_demo_filmstrip_shows_a_face(demo_run):

@@ -113,3 +113,18 @@ def test_not_toml_and_missing(tmp_path):
         load_shot(write(tmp_path, "name = [unclosed"))
     with pytest.raises(KDInputError, match="file not found"):
         load_shot(tmp_path / "none.toml")
+
+
+def test_falloff_m_is_a_constraint_option(tmp_path):
+    from kdfaces import defaults
+
+    text = GOOD.replace('curve = "poly"', 'curve = "poly"\nfalloff_m = 0.03')
+    cs = load_shot(write(tmp_path, text)).constraints()
+    assert cs[3].falloff_m == 0.03 and cs[1].falloff_m == defaults.FALLOFF_M  # end effector set, subset default
+    for bad, match in [("falloff_m = -0.01", r"constraints\[3\].falloff_m: expected greater than or equal to 0"),
+                       ("falloff_m = true", r"constraints\[3\].falloff_m")]:
+        with pytest.raises(KDInputError, match=match):
+            load_shot(write(tmp_path, text.replace("falloff_m = 0.03", bad)))
+    on_pose = GOOD.replace("width_s = 0.3", "width_s = 0.3\nfalloff_m = 0.03", 1)
+    with pytest.raises(KDInputError, match=r"constraints\[0\].falloff_m: .* not to a pose constraint"):
+        load_shot(write(tmp_path, on_pose))

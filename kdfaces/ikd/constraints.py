@@ -16,6 +16,11 @@ A constraint at time t_i measures a quantity q(x_KD(t_i), x_KD(t_i − h)) and w
 e (the correction direction) — directly on vertex states, or through a Jacobian J = ∂x/∂state when the corrected
 state is something else (joint angles, §4.4: ``lift_through``); ``measure`` gives q so the solver can form
 d = q(x̃_KD) − q(x_KD) (eq. 3, 5).
+
+On a mesh (``lift(..., surface=...)``, :mod:`kdfaces.ikd.lifts`) a subset, velocity or end-effector residual lifts
+smoothly: e = r on the group (J e = r for an end effector, the minimal-energy step), falling off to zero over
+``falloff_m`` around it, so the correction has no seam at the group's boundary. A pose constraint covers every
+vertex and lifts as before.
 """
 
 from __future__ import annotations
@@ -53,6 +58,8 @@ class Constraint:
         weights: (G,) point weights (sum to one) of end-effector and plane constraints, else None.
         pinv_damping: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹, relative to ‖J‖² (end effector, and every
             constraint lifted through a Jacobian).
+        falloff_m: geodesic radius [m] over which the lifted correction falls off to zero around the constrained
+            vertices on a mesh (subset, velocity, end effector; 0: the sharp lift on the vertices only).
         label: a name for reports.
         index: position in the list it was built in (for unique names in messages; -1 if unknown).
         normal: (3,) unit plane normal of a plane constraint, else None.
@@ -66,6 +73,7 @@ class Constraint:
     target: np.ndarray
     weights: np.ndarray | None = None
     pinv_damping: float = defaults.PINV_DAMPING
+    falloff_m: float = defaults.FALLOFF_M
     label: str = ""
     index: int = -1
     meta: dict = field(default_factory=dict, compare=False)
@@ -133,8 +141,24 @@ class Constraint:
         """The reported error of a residual: max over vertices of the Euclidean norm [m or m/s]."""
         return float(np.linalg.norm(r, axis=-1).max())
 
-    def lift(self, r: np.ndarray, num_vertices: int) -> np.ndarray:
-        """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors)."""
+    @property
+    def smooth(self) -> bool:
+        """True when it lifts smoothly on a mesh: a subset, velocity or end-effector constraint with falloff_m > 0
+        (pose and plane constraints lift sharply)."""
+        return self.kind in ("subset", "velocity", "end_effector") and self.falloff_m > 0
+
+    def lift(self, r: np.ndarray, num_vertices: int, *, surface=None) -> np.ndarray:
+        """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors).
+
+        With a :class:`~kdfaces.ikd.Surface` of the N vertices and :attr:`smooth`, the displacement is the
+        smooth lift of :mod:`kdfaces.ikd.lifts` (exactly r on the group, or J e = r/(1 + μ²) for an end effector,
+        falling off over ``falloff_m``); else r on the constrained vertices and zero elsewhere.
+        """
+        if surface is not None and self.smooth:
+            if self.kind == "end_effector":
+                op = surface.lift_for(self.indices, falloff_m=self.falloff_m, weights=self.weights)
+                return op.point(r, pinv_damping=self.pinv_damping)
+            return surface.lift_for(self.indices, falloff_m=self.falloff_m).extend(r)
         e = np.zeros((num_vertices, 3))
         if self.kind == "plane":
             # q = n·Σ w_j x_j ⇒ J = [w_1 nᵀ … w_G nᵀ], JJᵀ = ‖w‖², J⁺ r = w_j n r / (‖w‖² (1 + μ²))
@@ -183,6 +207,13 @@ def _target(value, shape, where: str) -> np.ndarray:
     return t
 
 
+def _falloff(falloff_m, where: str) -> float:
+    if isinstance(falloff_m, bool) or not isinstance(falloff_m, int | float | np.floating | np.integer) \
+            or not (np.isfinite(falloff_m) and falloff_m >= 0):
+        raise KDInputError(f"{where}: falloff_m: expected a non-negative number of metres, got {falloff_m!r}")
+    return float(falloff_m)
+
+
 def _time(time_s, where: str) -> float:
     if isinstance(time_s, bool) or not isinstance(time_s, int | float | np.floating | np.integer) \
             or not np.isfinite(time_s):
@@ -204,31 +235,35 @@ def pose_constraint(time_s, target_positions, basis: Basis, *, num_vertices: int
 
 @renamed_kwargs(time="time_s")
 def subset_constraint(time_s, target_positions, group, basis: Basis, *, num_vertices: int,
-                      label="subset") -> Constraint:
-    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time_s`` [s]."""
+                      falloff_m: float = defaults.FALLOFF_M, label="subset") -> Constraint:
+    """Vertices ``group`` (G,) at ``target_positions`` [m] — (N, 3) full-size or (G, 3) — at ``time_s`` [s]; on a
+    mesh the correction falls off over ``falloff_m`` [m] around the group."""
     idx = _indices(group, num_vertices, label)
     tp = np.asarray(target_positions, dtype=np.float64)
     tgt = tp[idx] if tp.shape == (num_vertices, 3) else tp
-    return Constraint("subset", _time(time_s, label), basis, idx, _target(tgt, (len(idx), 3), label), label=label)
+    return Constraint("subset", _time(time_s, label), basis, idx, _target(tgt, (len(idx), 3), label),
+                      falloff_m=_falloff(falloff_m, label), label=label)
 
 
 @renamed_kwargs(time="time_s")
 def velocity_constraint(time_s, target_velocity, basis: Basis, *, group=None, num_vertices: int,
-                        label="velocity") -> Constraint:
+                        falloff_m: float = defaults.FALLOFF_M, label="velocity") -> Constraint:
     """KD velocity (eq. 12) of ``group`` (default all) equal to ``target_velocity`` [m/s] — (G, 3) or (3,) — at
-    ``time_s`` [s]."""
+    ``time_s`` [s]; on a mesh the correction falls off over ``falloff_m`` [m] around the group."""
     idx = _indices(group, num_vertices, label)
     tv = np.asarray(target_velocity, dtype=np.float64)
     tv = np.broadcast_to(tv, (len(idx), 3)).copy() if tv.shape == (3,) else tv
-    return Constraint("velocity", _time(time_s, label), basis, idx, _target(tv, (len(idx), 3), label), label=label)
+    return Constraint("velocity", _time(time_s, label), basis, idx, _target(tv, (len(idx), 3), label),
+                      falloff_m=_falloff(falloff_m, label), label=label)
 
 
 @renamed_kwargs(time="time_s", damping="pinv_damping")
 def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, weights=None, num_vertices: int,
-                            pinv_damping: float = defaults.PINV_DAMPING, label="end_effector") -> Constraint:
+                            pinv_damping: float = defaults.PINV_DAMPING, falloff_m: float = defaults.FALLOFF_M,
+                            label="end_effector") -> Constraint:
     """The point p(x) = Σ w_j x_j over ``vertices`` (default weights: centroid) at ``target_point`` (3,) [m] at
     ``time_s`` [s]; the error maps to a correction through the damped pseudo-inverse (eq. 4–5, μ =
-    ``pinv_damping``)."""
+    ``pinv_damping``), on a mesh the minimal-energy one falling off over ``falloff_m`` [m] around the vertices."""
     idx = np.asarray(vertices, dtype=np.int64).reshape(-1)
     idx = _indices(idx, num_vertices, label)
     w = np.full(len(idx), 1.0 / len(idx)) if weights is None else np.asarray(weights, dtype=np.float64)
@@ -237,7 +272,7 @@ def end_effector_constraint(time_s, target_point, vertices, basis: Basis, *, wei
     if not (pinv_damping >= 0):
         raise KDInputError(f"{label}: pinv_damping must be non-negative, got {pinv_damping}")
     return Constraint("end_effector", _time(time_s, label), basis, idx, _target(target_point, (3,), label),
-                      weights=w, pinv_damping=float(pinv_damping), label=label)
+                      weights=w, pinv_damping=float(pinv_damping), falloff_m=_falloff(falloff_m, label), label=label)
 
 
 @renamed_kwargs(time="time_s")
@@ -250,7 +285,7 @@ def plane_constraint(time_s, normal, offset_m: float, vertices, basis: Basis, *,
     if side not in ("below", "on"):
         raise KDInputError(f"{label}: side must be 'below' or 'on', got {side!r}")
     ee = end_effector_constraint(time_s, np.zeros(3), vertices, basis, weights=weights, num_vertices=num_vertices,
-                                 pinv_damping=pinv_damping, label=label)
+                                 pinv_damping=pinv_damping, falloff_m=0.0, label=label)
     n = _target(normal, (3,), f"{label} normal")
     norm = float(np.linalg.norm(n))
     if norm == 0.0:

@@ -7,10 +7,11 @@ is the paper's "scaled" variant.
 
 ``update="secant"`` (ours): the map from correction to KD state is smooth and nearly linear, and for vertex-state
 constraints nearly diagonal (each vertex mostly answers its own correction through its own PD gain). One trial per
-constraint estimates a per-coordinate response c_k = d_k / r_k (scalar for end effectors, safeguarded towards
-the paper's scalar projection); every later sweep updates all constraints at once, Δ_i += s·lift(r_i / c_i)
-(Jacobi), and evaluates every constraint's KD state in **one batched** ``simulate_kd`` call. A constraint whose
-error does not halve gets a fresh trial. Typical cost: N trials once, then one batched simulation per sweep.
+constraint estimates a per-coordinate response c_k = d_k / r_k (for end effectors and Jacobian lifts a scalar
+c = ‖d‖²/(r·d), so that the step is the paper's projection, eq. 3 and 5); every later sweep updates all
+constraints at once, Δ_i += s·lift(r_i / c_i) (Jacobi), and evaluates every constraint's KD state in **one
+batched** ``simulate_kd`` call. A constraint whose error does not halve gets a fresh trial. Typical cost: N
+trials once, then one batched simulation per sweep.
 
 Both stop when every constraint is within tolerance (metres, or m/s for velocity constraints), after
 ``max_iterations`` sweeps, on divergence, or when the correction grows past ``max_correction_m`` (out of reach);
@@ -19,6 +20,10 @@ the result says which, with residuals — never a hang.
 The corrected state is the trajectory's own (``trajectory.state_shape``): a face's vertex positions, where a
 residual lifts directly (eq. 1, or eq. 4–5 for an end effector), or a skeleton's joint angles, where the system
 provides J = ∂x/∂θ (``correction_jacobian``, §4.4) and the residual lifts through its damped pseudo-inverse.
+
+On a face (a trajectory with a ``rig``, or an explicit ``surface``), subset, velocity and end-effector residuals
+lift smoothly onto the mesh (:mod:`kdfaces.ikd.lifts`): each constraint's lift is factorised once, on its first
+use, and reused by every later iteration (``IKDResult.extra["lift_factorizations"]`` counts them).
 
 A :class:`~kdfaces.ikd.clearance.Clearance` among the constraints is an inequality over a whole pass, solved by
 active-set rounds around the same solve (see :mod:`kdfaces.ikd.clearance`); each round warm-starts from the
@@ -40,7 +45,8 @@ from ..errors import KDInputError
 from ..kd import simulate_kd
 from .clearance import Clearance
 from .constraints import POINT_KINDS, Constraint
-from .corrections import CorrectedTrajectory, Correction, Slot
+from .corrections import POSITION, CorrectedTrajectory, Correction, Slot
+from .lifts import Surface, seam_ratio
 
 __all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "independent_check", "UPDATES",
            "OffGridConstraintWarning"]
@@ -72,6 +78,9 @@ class IKDResult:
         update, step_scale: the update rule and its scale s.
         active_set_rounds: solves done for clearance constraints (0 without one); clearance_m: the smallest
             clearance before the first round and after each round [m] (empty without one).
+        surface: the mesh the residuals were lifted on (:class:`~kdfaces.ikd.Surface`), or None (sharp lifts,
+            or a non-vertex state).
+        extra: ``lift_factorizations`` and ``lift_solves`` of the smooth lifts.
     """
 
     correction: Correction
@@ -87,9 +96,28 @@ class IKDResult:
     kd_calls: int = 0
     update: str = defaults.SOLVER_UPDATE
     step_scale: float = defaults.STEP_SCALE
+    surface: Surface | None = None
     extra: dict = field(default_factory=dict)
     active_set_rounds: int = 0
     clearance_m: list = field(default_factory=list)
+
+    def correction_at(self, i: int) -> np.ndarray:
+        """The correction constraint ``i`` asks for at its time, shape ``state_shape``: f(t_i) [m] for position
+        constraints, ḟ(t_i) [m/s] for velocity constraints."""
+        c = self.constraints[i]
+        order = 0 if c.slot_kind == POSITION else 1
+        return self.correction.evaluate([c.time_s], order)[order][0]
+
+    def seam_ratios(self, faces=None) -> list[float] | None:
+        """Each constraint's :func:`~kdfaces.ikd.seam_ratio` of :meth:`correction_at` over the mesh edges:
+        the largest ‖f_a − f_b‖ over edges divided by the largest ‖f‖. ``faces`` (F, 3) default to the surface's;
+        None when there is no mesh (a joint-angle state)."""
+        if faces is None and self.surface is None:
+            return None
+        if len(self.correction.state_shape) != 2 or self.correction.state_shape[1] != 3:
+            return None
+        edges = self.surface.edges if faces is None else None
+        return [seam_ratio(self.correction_at(i), faces, edges=edges) for i in range(len(self.constraints))]
 
     @property
     def errors_before(self) -> np.ndarray:
@@ -153,12 +181,19 @@ def _check_conflict(a: Constraint, b: Constraint) -> None:
 
 
 class _KD:
-    """Counts and batches the KD simulations of a solve."""
+    """Counts and batches the KD simulations of a solve.
+
+    The states of the latest trajectory content (its ``version``) are kept: Algorithm 1's line 7 for the first
+    constraint of a sweep asks for a state that lines 13–17 of the previous sweep just computed, and gets it back
+    without a simulation (KD states are history-free, so it is the same state).
+    """
 
     def __init__(self, system, window_s, step_s):
         self.system, self.window_s, self.h = system, window_s, step_s
         self.calls = 0
         self.states = 0
+        self._version = None
+        self._known: dict[float, np.ndarray] = {}
 
     def at(self, trajectory, constraints: list[Constraint]):
         """KD states (x, x_prev) for each constraint, all simulated in one batch."""
@@ -168,9 +203,17 @@ class _KD:
             if c.needs_previous:
                 times.append(c.time_s - self.h)
         uniq, inv = np.unique(np.round(np.asarray(times), 12), return_inverse=True)
-        X = np.asarray(simulate_kd(self.system, trajectory, uniq, self.window_s, step_s=self.h), dtype=np.float64)
-        self.calls += 1
-        self.states += len(uniq)
+        version = getattr(trajectory, "version", None)
+        if version is not None and version == self._version and all(float(t) in self._known for t in uniq):
+            X = [self._known[float(t)] for t in uniq]
+        else:
+            X = np.asarray(simulate_kd(self.system, trajectory, uniq, self.window_s, step_s=self.h),
+                           dtype=np.float64)
+            self.calls += 1
+            self.states += len(uniq)
+            if version is None or version != self._version:
+                self._version, self._known = version, {}
+            self._known.update({float(t): X[k] for k, t in enumerate(uniq)})
         out, k = [], 0
         for c in constraints:
             x = X[inv[k]]
@@ -194,11 +237,15 @@ def _response(c: Constraint, r: np.ndarray, d: np.ndarray, *, scalar_only: bool)
     rr = float((r * r).sum())
     if rr == 0.0:
         return None
-    scalar = float((r * d).sum()) / rr
+    rd = float((r * d).sum())
+    scalar = rd / rr
     if not np.isfinite(scalar) or scalar <= 0.0:
         return None
     if c.kind in POINT_KINDS or scalar_only:
-        return scalar
+        # ‖d‖²/(r·d): the step r/c is then the paper's projection (r·d/‖d‖²)·r (eq. 3, 5), the least-squares step,
+        # which shortens as the response d turns away from r (a nonlinear map, e.g. the hat tip through the posture)
+        # where (r·d)/‖r‖² would lengthen it
+        return float((d * d).sum()) / rd
     big = np.abs(r) >= 0.05 * np.abs(r).max()
     with np.errstate(divide="ignore", invalid="ignore"):
         per = np.where(big, d / np.where(big, r, 1.0), scalar)
@@ -208,7 +255,7 @@ def _response(c: Constraint, r: np.ndarray, d: np.ndarray, *, scalar_only: bool)
 class _Lifter:
     """Maps a constraint's residual to a correction of the trajectory's state (see the module docstring)."""
 
-    def __init__(self, system, trajectory, observed_shape):
+    def __init__(self, system, trajectory, observed_shape, constraints, surface=None):
         self.state_shape = tuple(getattr(trajectory, "state_shape", None) or observed_shape)
         self.jacobian = getattr(system, "correction_jacobian", None)
         self.through = self.state_shape != tuple(observed_shape)
@@ -216,11 +263,28 @@ class _Lifter:
             raise KDInputError(f"solver: the trajectory's state {self.state_shape} is not what the system observes "
                                f"{tuple(observed_shape)}, and the system has no correction_jacobian to map between")
         self.num_points = observed_shape[0]
+        self.surface = None
+        if surface is not None and not self.through and surface.num_vertices != self.num_points:
+            raise KDInputError(f"solver: the surface has {surface.num_vertices} vertices, the system observes "
+                               f"{self.num_points} points")
+        if not self.through and any(c.smooth for c in constraints):
+            s = surface if surface is not None else Surface.from_trajectory(trajectory)
+            if s is not None and s.num_vertices == self.num_points:
+                self.surface = s
+        self._factorizations0 = 0 if self.surface is None else self.surface.factorizations
+        self._solves0 = 0 if self.surface is None else self.surface.solves
 
     def __call__(self, c: Constraint, r: np.ndarray, x: np.ndarray, trajectory) -> np.ndarray:
         if not self.through:
-            return c.lift(r, self.num_points)
+            return c.lift(r, self.num_points, surface=self.surface)
         return c.lift_through(r, self.jacobian(trajectory, c.time_s, x, c.indices))
+
+    def counts(self) -> dict:
+        """Factorisations and back-substitutions of the smooth lifts during this solve."""
+        if self.surface is None:
+            return {"lift_factorizations": 0, "lift_solves": 0}
+        return {"lift_factorizations": self.surface.factorizations - self._factorizations0,
+                "lift_solves": self.surface.solves - self._solves0}
 
 
 def _check_frames(constraints, trajectory, snap: bool) -> list[Constraint]:
@@ -249,7 +313,7 @@ def solve_ikd(system, trajectory, constraints: list, *, window_s: float, step_s:
               tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
               max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
               snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S,
-              callback=None, max_rounds: int = 10) -> IKDResult:
+              surface: Surface | None = None, callback=None, max_rounds: int = 10) -> IKDResult:
     """Solve for a correction f so that KD states of x_K + f meet ``constraints`` (Algorithm 1 or secant).
 
     Args:
@@ -267,12 +331,15 @@ def solve_ikd(system, trajectory, constraints: list, *, window_s: float, step_s:
         snap_to_frames: move constraints that fall between frames onto the nearest frame (else they warn with
             :class:`OffGridConstraintWarning`).
         max_wall_s: stop after this long [s] (reason "time_limit"), whatever the iterations left.
+        surface: the mesh smooth lifts live on (:class:`~kdfaces.ikd.Surface`); default the rest mesh of
+            ``trajectory.rig`` when there is one (no rig: every residual lifts onto its own vertices only). Share one
+            between solves of the same rig to reuse the lifts' factorisations.
         callback: optional ``callback(iteration, errors)`` after each sweep.
     """
     constraints = list(constraints)
     options = dict(window_s=window_s, step_s=step_s, update=update, step_scale=step_scale, tolerance_m=tolerance_m,
                    tolerance_mps=tolerance_mps, max_iterations=max_iterations, max_correction_m=max_correction_m,
-                   snap_to_frames=snap_to_frames, max_wall_s=max_wall_s, callback=callback)
+                   snap_to_frames=snap_to_frames, max_wall_s=max_wall_s, surface=surface, callback=callback)
     clearances = [c for c in constraints if isinstance(c, Clearance)]
     if not clearances:
         return _solve(system, trajectory, constraints, **options)
@@ -363,8 +430,8 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
            update: str = defaults.SOLVER_UPDATE, step_scale: float = defaults.STEP_SCALE,
            tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
            max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
-           snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S, callback=None,
-           warm: Correction | None = None) -> IKDResult:
+           snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S,
+           surface: Surface | None = None, callback=None, warm: Correction | None = None) -> IKDResult:
     """The equality solve behind :func:`solve_ikd`; ``warm``: a correction whose slot values (matched by time and
     kind) start this one."""
     if update not in UPDATES:
@@ -393,7 +460,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
     observed = pairs[0][0].shape
     for c in constraints:
         c.check_state(observed[0])
-    lift = _Lifter(system, trajectory, observed)
+    lift = _Lifter(system, trajectory, observed, constraints, surface)
     corr, slot_of = build_correction(constraints, lift.state_shape)
     traj_f = CorrectedTrajectory(trajectory, corr)
     if warm is not None and warm.values.any():
@@ -474,7 +541,8 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
     return IKDResult(correction=corr, trajectory=traj_f, constraints=list(constraints),
                      converged=bool((err <= tol).all()), reason=reason, iterations=it, history=np.array(history),
                      states=[x for x, _ in pairs], wall_s=_time.perf_counter() - t0, kd_states=kd.states,
-                     kd_calls=kd.calls, update=update, step_scale=step_scale)
+                     kd_calls=kd.calls, update=update, step_scale=step_scale, surface=lift.surface,
+                     extra=lift.counts())
 
 
 @renamed_kwargs(window="window_s", h="step_s")

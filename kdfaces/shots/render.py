@@ -6,7 +6,7 @@ Outputs (all written atomically):
 - ``heatmap.png`` — per-vertex |x_KD − x_K| in mm with a colour bar, same frames (``heatmap_ikd.png``: the same
   for |x_IKD − x_K|, with its own colour range);
 - ``constraints.png`` — each constraint's frame before (KD) and after (IKD) the solve, target (green) vs reached
-  (orange) markers and the error in mm;
+  (orange) markers, the error in mm and the seam ratio of the constraint's correction;
 - ``movie.mp4`` (GIF fallback) — the whole shot, panels side by side;
 - point caches of the final trajectory with ``--export usd|pc2``; ``summary.json``.
 
@@ -93,7 +93,8 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
         panel_rows = {"KD (before)": _constraint_states(run, constraints, shot.trajectory),
                       "IKD (after)": _constraint_states(run, constraints, ikd_result.trajectory)}
         outputs.append(constraint_panel(out / "constraints.png", rig.faces, constraints, panel_rows, step_s=shot.step_s,
-                                        reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)"))
+                                        reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)",
+                                        seam_ratios=ikd_result.seam_ratios(rig.faces)))
     rows = {"kinematic": run.kinematic, "KD": run.kd}
     if run.ikd is not None:
         rows["IKD"] = run.ikd

@@ -120,8 +120,14 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
 
 
 def ikd_summary(run: ShotRun) -> dict:
-    """The ``"ikd"`` block of summary.json (errors in metres, or m/s for velocity constraints)."""
+    """The ``"ikd"`` block of summary.json (errors in metres, or m/s for velocity constraints).
+
+    Each constraint also reports ``seam_ratio``: the largest ‖f_a − f_b‖ over mesh edges of its correction at its
+    time (f, or ḟ for a velocity constraint) divided by the largest ‖f‖ (1: a tear at the group's boundary; see
+    :func:`~kdfaces.ikd.seam_ratio`), and its ``falloff_m``.
+    """
     r = run.ikd_result
+    seams = r.seam_ratios(run.shot.rig.faces)
     return {
         "converged": bool(r.converged),
         "reason": r.reason,
@@ -129,9 +135,11 @@ def ikd_summary(run: ShotRun) -> dict:
         "wall_s": float(r.wall_s),
         "update": r.update,
         "kd_states_simulated": int(r.kd_states),
+        "lift_factorizations": int(r.extra.get("lift_factorizations", 0)),
         "constraints": [
             {"label": c.label, "time_s": c.time_s, "kind": c.kind, "unit": c.unit,
-             "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i])}
+             "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i]),
+             "seam_ratio": float(seams[i]), "falloff_m": float(c.falloff_m) if c.smooth else 0.0}
             for i, c in enumerate(r.constraints)
         ],
         "independent_check_max_error_m": float(np.max(run.check_errors)),

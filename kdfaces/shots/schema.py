@@ -133,6 +133,7 @@ class ConstraintTable(_Table):
     curve: Literal["gaussian", "poly", "asymmetric"] = defaults.CURVE
     ease_out_s: Seconds | None = None
     label: str | None = None
+    falloff_m: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] | None = None
 
 
 class SolverTable(_Table):

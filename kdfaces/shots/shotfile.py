@@ -38,6 +38,8 @@ target = "kinematic"               # or a table: weights = {...}, head_deg = [ya
 group = "lips"                     # subset / velocity / end_effector: a named group or vertex indices
 width_s = 0.4                      # the animator's width σ of the correction bell
 curve = "gaussian"                 # gaussian | poly | asymmetric (with ease_out_s)
+# falloff_m = 0.05                 # subset / velocity / end_effector (not pose): the correction falls off to zero
+                                   #   over this geodesic radius around the group (0: on the group only)
 
 [solver]
 update = "secant"                  # "paper" (Algorithm 1) or "secant"
@@ -61,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
 from ..deprecation import warn_renamed
 from ..errors import KDInputError
 from ..ikd.bases import make_basis
@@ -186,6 +189,10 @@ class Shot:
         n = self.rig.num_vertices
         tt = c["target"] if isinstance(c["target"], dict) else {}
         group = vertex_group(self.rig, c["group"], where=f"{where}.group") if c["group"] is not None else None
+        falloff = defaults.FALLOFF_M if c.get("falloff_m") is None else float(c["falloff_m"])
+        if c.get("falloff_m") is not None and kind == "pose":
+            raise KDInputError(f"{where}.falloff_m: applies to subset, velocity and end_effector constraints, not to a "
+                               "pose constraint (it covers every vertex)")
         if kind in ("pose", "subset", "end_effector"):
             if tt.get("obj") is not None:
                 try:
@@ -204,18 +211,21 @@ class Shot:
         if kind == "subset":
             if group is None:
                 raise KDInputError(f"{where}: a subset constraint needs 'group'")
-            return self._indexed(subset_constraint(t, pose, group, basis, num_vertices=n, label=label), i)
+            return self._indexed(subset_constraint(t, pose, group, basis, num_vertices=n, falloff_m=falloff,
+                                                        label=label), i)
         if kind == "end_effector":
             if group is None:
                 raise KDInputError(f"{where}: an end_effector constraint needs 'group' (its vertices)")
             point = np.asarray(tt["point_m"], dtype=np.float64) if tt.get("point_m") is not None \
                 else pose[group].mean(axis=0)
-            return self._indexed(end_effector_constraint(t, point, group, basis, num_vertices=n, label=label), i)
+            return self._indexed(end_effector_constraint(t, point, group, basis, num_vertices=n,
+                                                              falloff_m=falloff, label=label), i)
         if tt.get("velocity_mps") is not None:
             v = np.asarray(tt["velocity_mps"], dtype=np.float64)
         else:  # the kinematic velocity of the group: the KD motion passes through t with the animator's speed
             v = traj.evaluate([t], 1)[1][0][group if group is not None else slice(None)]
-        return self._indexed(velocity_constraint(t, v, basis, group=group, num_vertices=n, label=label), i)
+        return self._indexed(velocity_constraint(t, v, basis, group=group, num_vertices=n, falloff_m=falloff,
+                                                    label=label), i)
 
     @staticmethod
     def _indexed(c: Constraint, i: int) -> Constraint:

@@ -38,7 +38,8 @@ def heat_clim(deviations_mm, *, percentile: float = 99.5) -> tuple[float, float]
 
 
 def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarray, times, *,
-                  clim_mm: tuple[float, float] | None = None, title: str | None = None, size=(360, 420)) -> Path:
+                  clim_mm: tuple[float, float] | None = None, title: str | None = None, size=(360, 420),
+                  cell_inches=(1.9, 2.25)) -> Path:
     """A PNG grid of deviation heat maps with a colour bar in mm.
 
     Args:
@@ -48,6 +49,7 @@ def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarra
         reference: kinematic positions (F, N, 3) [m] at ``times`` (the same reference for every row).
         times: (F,) [s], the column titles.
         clim_mm: colour limits [mm]; default :func:`heat_clim` over every panel.
+        size: each render's (width, height) [px]; cell_inches: each panel's size in the figure [in] (100 dpi).
 
     The faces are drawn at the row's positions (the deviation is seen in place).
     """
@@ -62,6 +64,6 @@ def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarra
                   for label in rows}
     maxima = {label: float(d.max()) for label, d in dev.items()}
     labels = {f"{label}\nmax {maxima[label]:.2f} mm": imgs for label, imgs in images.items()}
-    fig = image_grid(labels, [f"t = {t:.2f} s" for t in times], title=title,
+    fig = image_grid(labels, [f"t = {t:.2f} s" for t in times], title=title, cell_inches=cell_inches,
                      colorbar={"cmap": HEAT_CMAP, "clim": clim, "label": "|x − x_K| [mm]"})
     return save_figure(fig, path)

@@ -46,7 +46,8 @@ def constraint_markers(constraint, x, x_prev=None, *, step_s: float = 0.04, max_
 
 
 def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.ndarray, np.ndarray | None]]], *,
-                     step_s: float, reference: np.ndarray, title: str | None = None) -> Path:
+                     step_s: float, reference: np.ndarray, title: str | None = None,
+                     seam_ratios=None) -> Path:
     """A PNG with one column per constraint and one row per label, target and reached markers on each face.
 
     Args:
@@ -56,7 +57,9 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
         step_s: KD step [s] (velocity markers and errors).
         reference: (N, 3) [m] positions fixing the camera.
 
-    Each panel is labelled with the constraint's error max‖target − q‖ in mm (mm/s for velocity constraints).
+    Each panel is labelled with the constraint's error max‖target − q‖ in mm (mm/s for velocity constraints); with
+    ``seam_ratios`` (one per constraint, see :func:`~kdfaces.ikd.seam_ratio`) each column title also gives the seam
+    ratio of the constraint's correction.
     """
     images, captions = {}, {}
     with FaceRenderer(faces, reference) as renderer:
@@ -66,5 +69,7 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
             captions[label] = [f"error {1e3 * c.error(c.residual(x, xp, step_s)):.2f} "
                                f"{'mm/s' if c.kind == 'velocity' else 'mm'}" for c, (x, xp) in zip(constraints, states)]
     titles = [f"{c.label or c.kind}\nt = {c.time_s:.2f} s" for c in constraints]
+    if seam_ratios is not None:
+        titles = [f"{t}, seam {float(s):.2f}" for t, s in zip(titles, seam_ratios, strict=True)]
     fig = image_grid(images, titles, title=title, captions=captions, cell_inches=(2.3, 2.6))
     return save_figure(fig, path)

@@ -1,4 +1,5 @@
-"""Movies of a whole shot: side-by-side panels (e.g. kinematic | KD | IKD) per frame, MP4 or GIF.
+"""Movies of a whole shot: side-by-side panels (e.g. kinematic | KD | IKD) per frame, MP4 or GIF, optionally with
+a timeline bar under the panels and the non-reference panels coloured by their deviation in mm.
 
 MP4 (H.264, yuv420p) is written through ``imageio-ffmpeg``'s bundled ffmpeg; when that is unavailable or fails, a
 GIF is written with Pillow instead (the returned path says which). Files are written atomically. A tqdm progress
@@ -18,7 +19,7 @@ from ..errors import KDInputError
 from ..io.atomic import atomic_path
 from .figures import FaceRenderer, check_positions
 
-__all__ = ["MovieWriterUnavailable", "write_movie", "render_movie", "side_by_side"]
+__all__ = ["MovieWriterUnavailable", "write_movie", "render_movie", "side_by_side", "timeline_bar", "TIMELINE_PX"]
 
 
 class MovieWriterUnavailable(RuntimeError):
@@ -100,17 +101,39 @@ def side_by_side(images: list[np.ndarray], *, gap: int = 4) -> np.ndarray:
     return np.concatenate(parts, axis=1)
 
 
+#: Height [px] of the timeline bar under a movie's panels.
+TIMELINE_PX = 12
+
+
+def timeline_bar(width: int, fraction: float, marks=(), *, height: int = TIMELINE_PX) -> np.ndarray:
+    """A progress bar image (``height``, ``width``, 3) uint8: dark up to ``fraction`` ∈ [0, 1] of the width on a
+    light track, with green ticks at the fractions ``marks`` (e.g. constraint times)."""
+    bar = np.full((height, width, 3), 225, np.uint8)
+    bar[:, : int(round(np.clip(fraction, 0.0, 1.0) * width))] = 90
+    for m in marks:
+        x = int(round(np.clip(m, 0.0, 1.0) * (width - 1)))
+        bar[:, max(x - 1, 0): x + 1] = (26, 152, 80)
+    bar[:2] = 255
+    return bar
+
+
 def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float, reference=None, size=(240, 280),
                  progress: bool | None = None, format: str | None = None, timings: list | None = None,
+                 timeline=None, deviation_from: str | None = None, clim_mm: tuple[float, float] | None = None,
                  colors=None) -> Path:
     """A movie with one panel per label of ``rows`` (each (F, N, 3) [m] at ``times`` (F,) [s]), side by side.
 
     Each panel is labelled with its row label and the frame time. ``progress``: show a tqdm bar (default: when
     stderr is a terminal). ``timings``: a list that receives the render time of each frame [s]. ``colors``: per-vertex
-    part colours (N, 3) (see :func:`~kdfaces.viz.figures.part_colors`). Returns the path written (MP4, or GIF on
-    fallback).
+    part colours (N, 3) (see :func:`~kdfaces.viz.figures.part_colors`). ``timeline``: draw a progress bar under the
+    panels (True, or a sequence of times [s] to tick on it, e.g. constraint times). ``deviation_from``: a row
+    label; every other panel is coloured by its distance to that row in mm (heat map, colour range ``clim_mm``,
+    default :func:`~kdfaces.viz.heatmap.heat_clim` over the whole movie), written in its label. Returns the path
+    written (MP4, or GIF on fallback).
     """
     from tqdm import tqdm
+
+    from .heatmap import HEAT_CMAP, deviation_mm, heat_clim
 
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
     arrays = {}
@@ -121,12 +144,37 @@ def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float,
     first = next(iter(arrays.values()))
     ref = first[0] if reference is None else reference
     show = sys.stderr.isatty() if progress is None else progress
+    heat = {}
+    if deviation_from is not None:
+        if deviation_from not in arrays:
+            raise KDInputError(f"movie: deviation_from {deviation_from!r} is not one of the rows {list(arrays)}")
+        heat = {label: deviation_mm(x, arrays[deviation_from]) for label, x in arrays.items()
+                if label != deviation_from}
+        if clim_mm is None:
+            clim_mm = heat_clim(np.concatenate([d.ravel() for d in heat.values()])) if heat else (0.0, 1.0)
+    marks = []
+    if timeline is not None and timeline is not False and timeline is not True:
+        marks = [float(t) for t in timeline]
+    span = max(float(times[-1] - times[0]), 1e-300)
     frames = []
-    with FaceRenderer(faces, ref, size=size, colors=colors) as renderer:
+    # one renderer per style: switching a renderer between plain and coloured re-creates its mesh actor
+    with FaceRenderer(faces, ref, size=size, colors=colors) as plain, \
+            FaceRenderer(faces, ref, size=size) as coloured:
         for k in tqdm(range(len(times)), desc="movie", unit="frame", disable=not show):
             t0 = time.perf_counter()
-            frames.append(side_by_side([renderer.render(x[k], label=f"{label}  t = {times[k]:.2f} s")
-                                        for label, x in arrays.items()]))
+            panels = []
+            for label, x in arrays.items():
+                if label in heat:
+                    text = f"{label} 0-{clim_mm[1]:.2g} mm  t = {times[k]:.2f} s"
+                    panels.append(coloured.render(x[k], heat[label][k], clim=clim_mm, cmap=HEAT_CMAP, label=text))
+                else:
+                    panels.append(plain.render(x[k], label=f"{label}  t = {times[k]:.2f} s"))
+            frame = side_by_side(panels)
+            if timeline is not None and timeline is not False:
+                bar = timeline_bar(frame.shape[1], (times[k] - times[0]) / span,
+                                   [(m - times[0]) / span for m in marks])
+                frame = np.concatenate([frame, bar], axis=0)
+            frames.append(frame)
             if timings is not None:
                 timings.append(time.perf_counter() - t0)
     return write_movie(path, frames, fps=fps, format=format)

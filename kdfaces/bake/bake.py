@@ -254,7 +254,7 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
                                k=k, cache_dir=cache_dir, progress=progress,
                                fingerprints=(input_fingerprint(path, text, table), code_fingerprint()),
                                payload_type=BakePayload)
-        st = _open_store(Path(store), payload.key, parsed.animation.frame_times, payload.vertices, k,
+        st = _open_store(Path(store).absolute(), payload.key, parsed.animation.frame_times, payload.vertices, k,
                          meta={"shot": parsed.name, "shot_path": str(path), "window_s": repr(payload.window_s),
                                "step_s": payload.step_s, "fps": parsed.animation.fps})
         result = BakeResult(store=st.path, shot=parsed, key=payload.key, frames=st.frames, chunks=st.num_chunks,

@@ -50,17 +50,23 @@ def configure_output(*, verbose: bool = False) -> None:
         os.close(saved)
 
 
-def _import_renderer(verbose: bool) -> None:
-    """Import pyvista/VTK now, with SIGINT and SIGTERM held back: an interrupt must never land inside VTK's import
-    (it turns into an ImportError or a crash there); it is only recorded, and raised right after."""
+def _load_native(args, *, renders: bool, verbose: bool) -> None:
+    """Set up the process (:func:`configure_output`: Warp) and import the native libraries the command will use —
+    VTK when it ``renders``, USD when it exports USD — with SIGINT and SIGTERM held back: an interrupt must never
+    land inside such an import or initialisation (half-registered native state turns into an ImportError, or a crash
+    at exit). It is only recorded meanwhile, and raised right after."""
     held = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, _record_signal) for s in held}
     try:
-        import pyvista  # noqa: F401
-        from vtkmodules.vtkCommonCore import vtkLogger
+        configure_output(verbose=verbose)
+        if renders:
+            import pyvista  # noqa: F401
+            from vtkmodules.vtkCommonCore import vtkLogger
 
-        if not verbose:
-            vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
+            if not verbose:
+                vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)  # "bad X server connection" off-screen
+        if any(str(kind).startswith("usd") for kind in (getattr(args, "export", None) or ())):
+            from pxr import Sdf, Tf, Usd, UsdGeom, Vt  # noqa: F401
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -87,13 +93,14 @@ def _record_signal(signum, frame):
 
 def command(prog: str, build, argv, *, renders) -> int:
     """Parse ``argv`` with ``build()`` and :func:`execute` it, with Ctrl-C and SIGTERM taken over from the first
-    moment (before any heavy library is imported, so none can swallow the interrupt unnoticed)."""
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    moment (before any heavy library is imported, so none can swallow the interrupt unnoticed). While the parser
+    imports the libraries, an interrupt is only recorded (raised inside an import it can leave a half-imported module
+    or a library's own state behind) and acted on right after."""
+    previous = {s: signal.signal(s, _record_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     _INTERRUPTED.clear()
     try:
-        try:
-            args = build().parse_args(argv)
-        except KeyboardInterrupt:
+        args = build().parse_args(argv)
+        if _INTERRUPTED.is_set():
             print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
             return 130
         if getattr(args, "out", "") is None and getattr(args, "shot", None):
@@ -115,9 +122,7 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     folder = None
     t0 = time.perf_counter()
     try:
-        configure_output(verbose=getattr(args, "verbose", False))
-        if renders:
-            _import_renderer(getattr(args, "verbose", False))
+        _load_native(args, renders=renders, verbose=getattr(args, "verbose", False))
         final = getattr(args, "out", None)
         args.final_out = final  # where the folder will appear (args.out is its temporary sibling meanwhile)
         if final is not None:

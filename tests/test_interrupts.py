@@ -52,7 +52,9 @@ def test_ctrl_c_at_random_times_never_leaves_a_partial_run(tmp_path):
         else:  # interrupted: no output and a non-zero status (130 from our handler; during interpreter start-up,
             # before any handler exists, Python's own KeyboardInterrupt exit)
             assert rc != 0, (delay, err)
-            if delay > 2.0:  # well after start-up the handler is installed: exactly 130 and one line
-                assert rc == 130, (rc, delay, err)
-                assert "Traceback" not in err, (delay, err)
+            if delay > 2.0:  # well after start-up the handler is installed: our one line, no traceback. The status
+                # is 130, or death by SIGINT: CPython re-raises the signal at exit when the interrupt passed through
+                # an exec() of a string (e.g. a dataclass being created by a module imported mid-run)
+                assert rc in (130, -signal.SIGINT), (rc, delay, err)
+                assert err.strip().splitlines()[-1:] == ["kdfaces: interrupted; nothing was written"], (delay, err)
     assert finished < RUNS  # the delays do reach into the runs

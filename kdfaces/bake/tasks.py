@@ -113,8 +113,8 @@ class BakePayload:
         correction: the solved IKD correction (:class:`~kdfaces.ikd.Correction`) or None.
         frames, vertices: the shot's frame count F and points per frame N.
         max_memory_bytes: the memory budget of a task's KD batch (None: half the worker's available memory).
-        max_bake_bytes: the trajectory bake a worker keeps between chunks (bounds a worker's memory whatever the
-            take's length).
+        max_bake_bytes: the trajectory bake a worker keeps between chunks, and its trajectory's sample cache
+            (bounds a worker's memory whatever the take's length).
         cache_dir: where workers keep parsed rigs (None: nowhere).
     """
 
@@ -161,6 +161,7 @@ def _baked(payload: BakePayload) -> tuple[_Baked, bool]:
     t0 = time.perf_counter()
     from ..dynamics import FaceSystem
     from ..ikd.corrections import CorrectedTrajectory
+    from ..motion.trajectory import KinematicTrajectory
     from ..shots.shotfile import parse_shot
 
     host = socket.gethostname()
@@ -175,7 +176,12 @@ def _baked(payload: BakePayload) -> tuple[_Baked, bool]:
     with warnings.catch_warnings():  # the client has shown the shot's warnings once
         warnings.simplefilter("ignore")
         shot = parse_shot(table, path, cache_dir=payload.cache_dir)
-        trajectory = shot.trajectory
+        if payload.max_bake_bytes is None:
+            trajectory = shot.trajectory
+        else:  # as Shot.trajectory, with a sample cache of about two chunks' windows (the system keeps its own rows):
+            # the default cache would fill up to its 256 MiB on a long take, and a worker's memory would grow with it
+            trajectory = KinematicTrajectory(shot.rig, shot.animation, channel_map=shot.channel_map,
+                                             strict=shot.strict_channels, cache_bytes=int(payload.max_bake_bytes))
     times = shot.animation.frame_times
     if len(times) != payload.frames or shot.rig.num_vertices != payload.vertices:
         raise KDInputError(f"{path}: {len(times)} frames of {shot.rig.num_vertices} vertices on {host}, the client "

@@ -124,6 +124,7 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     try:
         _load_native(args, renders=renders, verbose=getattr(args, "verbose", False))
         final = getattr(args, "out", None)
+        args.final_out = final  # where the folder will appear (args.out is its temporary sibling meanwhile)
         if final is not None:
             folder = OutputFolder(final)
             args.out = str(folder.__enter__())
@@ -228,6 +229,7 @@ def add_export_rig_parser(subparsers) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .bake.bake import add_bake_parser
     from .io.export import add_export_option
     from .shots.render import add_render_parser
     from .shots.run import add_run_parser
@@ -247,6 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)
+    add_bake_parser(sub)
     add_render_parser(sub)
     add_view_parser(sub)
     add_export_rig_parser(sub)

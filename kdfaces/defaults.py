@@ -14,8 +14,8 @@ __all__ = [
     "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
-    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "default_step",
-    "user_cache_dir",
+    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
+    "default_step", "user_cache_dir",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -83,6 +83,11 @@ RAYLEIGH_BETA = 0.01
 #: The hat's simulation step [s] and KD window [s].
 HAT_STEP_S = 0.01
 HAT_WINDOW_S = 0.568
+
+# --- bakes (kdfaces bake) ------------------------------------------------------------------------------------------
+#: Frames per bake task (one chunk of the store): large enough that a task's KD batch dwarfs Dask's per-task
+#: overhead, small enough that a 2-minute take gives every worker of a few machines many tasks.
+BAKE_CHUNK_FRAMES = 32
 
 
 def user_cache_dir():

@@ -39,7 +39,7 @@ def test_composite_gains_keep_time_better_than_local_gains(punch):
     critically damped joints started from the same states (the error eq. 4 makes by itself on a chained sequence).
 
     The issue's "5× smaller" is not asserted: this metric gives 1.65× (195 ms against 322 ms) on this arm, see
-    :func:`kdfaces.articulated.punch.timing_experiment` and the issue notes."""
+    :func:`kdfaces.articulated.punch.timing_experiment` and the README."""
     s, _ = punch
     t = s["timing"]
     err = t["keyframe_time_error_s"]

@@ -17,6 +17,11 @@ in t̂ (``timing="paper"``, n = 9.49). A critically damped step from rest, e(t) 
 (1 + n)e^{−n} = 1 − f (n = 3.89 for f = 0.9), so that 90 % of a step is reached exactly at t̂, which is what the
 paper's keyframe timing means. Both are available; the face model (:mod:`kdfaces.dynamics.gains`) keeps the
 paper's n.
+
+:meth:`OnTheBeat.torques` computes every term in NumPy (the reference path). An engine built for the controller runs
+it in its own step instead (:meth:`~kdfaces.articulated.MuJoCoEngine.track`): MuJoCo's C pipeline supplies the
+axes, the composite moments, the gravity compensation and the torque clamp, and :meth:`OnTheBeat.hinge_torques`
+adds eq. 4 and eq. 8–10 in between; both give the same torques.
 """
 
 from __future__ import annotations

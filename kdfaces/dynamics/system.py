@@ -134,8 +134,7 @@ class TrajectoryBake:
         need = int(rows.max()) + steps * self.stride + 1
         if need <= self.num_rows:
             return
-        # the bake is the cache of these rows: the trajectory's own sample cache is left for others
-        self._append(*scan_trajectory(self.trajectory, self.times(np.arange(self.num_rows, need)), 1))
+        self._append(*self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1))
 
 
 @dataclass

@@ -13,7 +13,7 @@ import pytest
 PACKAGES = ["kdfaces", "kdfaces.rig", "kdfaces.motion", "kdfaces.dynamics", "kdfaces.ikd", "kdfaces.io",
             "kdfaces.articulated",
             "kdfaces.viz", "kdfaces.shots", "kdfem", "kdfem.geometry", "kdfem.fem", "kdfem.modal",
-            "kdfem.scenes"]
+            "kdfem.scenes", "kdfem.viewer"]
 
 
 def _project(obj) -> bool:

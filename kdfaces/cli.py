@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import signal
 import sys
 import threading
@@ -75,8 +74,10 @@ def _load_native(args, *, renders: bool, verbose: bool) -> None:
 
 
 def peak_memory_bytes() -> int:
-    """Peak resident memory of this process so far [bytes]."""
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+    """Peak resident memory of this process so far [bytes] (see :func:`kdfaces.resources.peak_rss_bytes`)."""
+    from .resources import peak_rss_bytes
+
+    return peak_rss_bytes()
 
 
 _INTERRUPTED = threading.Event()

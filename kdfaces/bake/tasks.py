@@ -18,7 +18,6 @@ import functools
 import hashlib
 import json
 import os
-import resource
 import socket
 import sys
 import time
@@ -31,9 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError
+from ..resources import peak_rss_bytes
 from .store import STORE_FORMAT, BakeStore
 
-__all__ = ["BakePayload", "bake_chunk", "code_fingerprint", "input_fingerprint", "peak_rss_bytes", "WORKER_CACHE_SIZE"]
+__all__ = ["BakePayload", "bake_chunk", "code_fingerprint", "input_fingerprint", "WORKER_CACHE_SIZE"]
 
 #: Shots a worker process keeps rebuilt (system, trajectory) at once.
 WORKER_CACHE_SIZE = 2
@@ -223,19 +223,6 @@ def bake_chunk(payload: BakePayload, index: int, store_path: str) -> dict:
             "start": start, "stop": time.time(),
             "peak_rss_bytes": peak_rss_bytes()}
 
-
-def peak_rss_bytes() -> int:
-    """This process's peak resident memory [bytes]: ``VmHWM`` of /proc/self/status where there is one (the peak of
-    this program's own address space; ``ru_maxrss`` would carry over the peak of the process that spawned a worker,
-    since Linux keeps it across exec), else ``ru_maxrss``."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
 
 def quiet_worker_plugin():

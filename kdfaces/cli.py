@@ -142,6 +142,9 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     except KDError as e:
         if folder is not None:
             folder.abandon()
+        if interrupted.is_set():  # e.g. a solver stopped early by the interrupt and reported that as its error
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except MemoryError:
@@ -153,6 +156,10 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     except BaseException:
         if folder is not None:
             folder.abandon()
+        if interrupted.is_set():  # a library turned our KeyboardInterrupt into its own error (e.g. an ImportError
+            # from a lazy VTK import it landed in): it is still the interrupt
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
         raise
     finally:
         for s, h in previous.items():

@@ -30,12 +30,13 @@ settle_time_s = {{ stiff_s = 0.2, loose_s = 0.45 }}
 damping_ratio = 0.3
 """
 _MEASURE = """
-import json, resource, sys, time
+import json, sys, time
 from kdfaces.cli import main
+from kdfaces.resources import peak_rss_bytes
 t0 = time.perf_counter()
 rc = main(["run", sys.argv[1], "--out", sys.argv[2]])
 wall = time.perf_counter() - t0
-print(json.dumps({"rc": rc, "wall_s": wall, "peak_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+print(json.dumps({"rc": rc, "wall_s": wall, "peak_bytes": peak_rss_bytes(),
                   "summary": json.load(open(sys.argv[2] + "/summary.json")) if rc == 0 else None}))
 """
 

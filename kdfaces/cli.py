@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import signal
 import sys
 import threading
@@ -75,8 +74,10 @@ def _load_native(args, *, renders: bool, verbose: bool) -> None:
 
 
 def peak_memory_bytes() -> int:
-    """Peak resident memory of this process so far [bytes]."""
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+    """Peak resident memory of this process so far [bytes] (see :func:`kdfaces.resources.peak_rss_bytes`)."""
+    from .resources import peak_rss_bytes
+
+    return peak_rss_bytes()
 
 
 _INTERRUPTED = threading.Event()
@@ -124,6 +125,7 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     try:
         _load_native(args, renders=renders, verbose=getattr(args, "verbose", False))
         final = getattr(args, "out", None)
+        args.final_out = final  # where the folder will appear (args.out is its temporary sibling meanwhile)
         if final is not None:
             folder = OutputFolder(final)
             args.out = str(folder.__enter__())
@@ -140,6 +142,9 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     except KDError as e:
         if folder is not None:
             folder.abandon()
+        if interrupted.is_set():  # e.g. a solver stopped early by the interrupt and reported that as its error
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except MemoryError:
@@ -151,6 +156,10 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     except BaseException:
         if folder is not None:
             folder.abandon()
+        if interrupted.is_set():  # a library turned our KeyboardInterrupt into its own error (e.g. an ImportError
+            # from a lazy VTK import it landed in): it is still the interrupt
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
         raise
     finally:
         for s, h in previous.items():
@@ -228,6 +237,7 @@ def add_export_rig_parser(subparsers) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .bake.bake import add_bake_parser
     from .io.export import add_export_option
     from .shots.render import add_render_parser
     from .shots.run import add_run_parser
@@ -247,6 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)
+    add_bake_parser(sub)
     add_render_parser(sub)
     add_view_parser(sub)
     add_export_rig_parser(sub)

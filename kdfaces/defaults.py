@@ -10,11 +10,12 @@ from .errors import KDInputError
 
 __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "SHAPE_MATCHING_ALPHA", "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
-    "CLUSTER_RINGS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION", "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S",
-    "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY", "SOLVER_UPDATE",
+    "CLUSTER_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
+    "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
+    "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
-    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "WINDOW_MODES",
-    "default_step", "user_cache_dir", "window_argument",
+    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
+    "WINDOW_MODES", "default_step", "user_cache_dir", "window_argument",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -30,6 +31,10 @@ DAMPING_MODE = "relative"
 AREAL_DENSITY_KG_M2 = 10.0
 #: Shape-matching clusters are the k-rings of cluster centres.
 CLUSTER_RINGS = 2
+#: Cluster rotation fit: "iterative" (Newton on SO(3), warm-started; matches "svd3" within ε/100, several times
+#: faster) or "svd3"; and the iterative fit's Newton iterations per step.
+ROTATION = "iterative"
+ROTATION_ITERATIONS = 2
 
 # --- KD windows (§3, §5) -------------------------------------------------------------------------------------------
 #: "auto": the §5.2 (faces) or §5.3 (FEM objects) window; "adaptive": a window per frame, the smallest whose
@@ -81,6 +86,11 @@ RAYLEIGH_BETA = 0.01
 #: The hat's simulation step [s] and KD window [s].
 HAT_STEP_S = 0.01
 HAT_WINDOW_S = 0.568
+
+# --- bakes (kdfaces bake) ------------------------------------------------------------------------------------------
+#: Frames per bake task (one chunk of the store): large enough that a task's KD batch dwarfs Dask's per-task
+#: overhead, small enough that a 2-minute take gives every worker of a few machines many tasks.
+BAKE_CHUNK_FRAMES = 32
 
 
 def user_cache_dir():

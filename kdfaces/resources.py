@@ -9,11 +9,12 @@ competes with the rest of the machine for the other half; every entry point take
 from __future__ import annotations
 
 import os
+import resource
 
 from .errors import KDInputError
 
-__all__ = ["available_memory_bytes", "memory_budget_bytes", "format_bytes", "parse_bytes", "progress_bar",
-           "PROGRESS_DELAY_S"]
+__all__ = ["available_memory_bytes", "memory_budget_bytes", "peak_rss_bytes", "format_bytes", "parse_bytes",
+           "progress_bar", "PROGRESS_DELAY_S"]
 
 #: A stage shows a progress bar once it has run this long [s] (short stages stay quiet); the environment variable
 #: ``KDFACES_PROGRESS_DELAY_S`` overrides it (0 shows every bar).
@@ -101,3 +102,16 @@ class _NoBar:
 
     def __exit__(self, *exc):
         return False
+
+def peak_rss_bytes() -> int:
+    """This process's peak resident memory [bytes]: ``VmHWM`` of /proc/self/status where there is one (the peak of
+    this program's own address space; ``ru_maxrss`` would carry over the peak of the process that spawned a worker,
+    since Linux keeps it across exec), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024

@@ -1,5 +1,6 @@
 """The ``kdfem`` command: ``kdfem demo`` (the floppy hat), ``kdfem window [MESH]`` (the modal window report) and
-``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem follow`` (a head that follows through)."""
+``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem follow`` (a head that follows through) and
+``kdfem view`` (the hat's scrubbing viewer)."""
 
 from __future__ import annotations
 
@@ -52,6 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
     follow.add_argument("--out", default="kd-out/follow", help="output folder (default kd-out/follow)")
     follow.add_argument("--json", action="store_true", help="print summary.json to stdout")
     follow.set_defaults(func=_follow)
+    from .viewer import add_view_parser
+
+    add_view_parser(sub)
     return ap
 
 

@@ -4,7 +4,7 @@ Each module ``benchmarks/bench_*.py`` exposes ``BENCHMARKS``: a list of ``(name,
 ``repeats`` and returns a list of results ``{"name", "size", "median_s", "rate", "unit"}`` (``rate`` in ``unit``,
 e.g. vertex-steps/s; ``size`` a short description such as "4.5k vertices").
 
-    python scripts/bench.py [--only NAME] [--json] [--repeats N] [--out BENCHMARKS.md]
+    python scripts/bench.py [--only NAME ...] [--json] [--repeats N] [--out BENCHMARKS.md]
 """
 
 from __future__ import annotations
@@ -89,14 +89,15 @@ def write_markdown(path: Path, results: list[dict], *, rows: list[str] | None = 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", help="run only the benchmark with this name (prefix match)")
+    ap.add_argument("--only", action="append", default=[],
+                    help="run only the benchmarks with this name (prefix match; repeatable)")
     ap.add_argument("--json", action="store_true", help="print the results as a JSON list")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
     ap.add_argument("--update", action="store_true",
                     help="with --only: replace those benchmarks' rows in --out and keep the others")
     args = ap.parse_args(argv)
-    benches = [(n, f) for n, f in discover() if not args.only or n.startswith(args.only)]
+    benches = [(n, f) for n, f in discover() if not args.only or any(n.startswith(p) for p in args.only)]
     if not benches:
         print(f"bench: no benchmark named {args.only!r}", file=sys.stderr)
         return 2

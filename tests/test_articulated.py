@@ -17,6 +17,7 @@ from kdfaces.articulated import (
     simulate_keyframes,
     time_constants,
 )
+from kdfaces.errors import KDInputError
 from kdfaces.rig.skeleton import Skeleton
 
 
@@ -96,6 +97,74 @@ def test_composite_moments_are_mujocos_mass_matrix_diagonal():
     np.testing.assert_allclose(eng.data.qfrc_bias, model.gravity_torques(q).ravel(), rtol=1e-9, atol=1e-12)
 
 
+def test_parent_torque_compensation_is_algorithm_1():
+    """The triangular solve of :meth:`OnTheBeat.hinge_torques` against On the Beat's Algorithm 1 written out: hinges
+    root to leaf, τ_h = PD_h (eq. 4) + m_h (a_h·s_h), a_h = Σ over in-board hinges g of (τ_g/m_g) s_g (eq. 8–10),
+    on random moments, axes and states of two poses of the arm; equal to round-off (rtol 1e-12)."""
+    model = arm_chain_model()
+    ctrl = OnTheBeat(model)
+    rng = np.random.default_rng(3)
+    B, D = 2, model.dofs
+    q = rng.normal(0.0, 0.6, (B, model.num_joints, 3))
+    axes = model.terms(q)[0].reshape(B, D, 3)
+    m = rng.uniform(0.002, 0.2, (B, D))
+    x, xd, tx, txd = (rng.normal(0.0, 1.0, (B, D)) for _ in range(4))
+    lam = rng.uniform(0.02, 0.1, (B, D))
+    tau, kd = ctrl.hinge_torques(m, axes, x, xd, tx, txd, lam)
+    np.testing.assert_allclose(kd, 2.0 * m / lam, rtol=1e-14)
+    parents = model.skeleton.parents
+    for b in range(B):
+        expected = np.zeros(D)
+        for h in range(D):
+            j, c = divmod(h, 3)
+            inboard = [3 * j + k for k in range(c)]  # earlier hinges of its own joint, then every ancestor's
+            a = parents[j]
+            while a >= 0:
+                inboard += [3 * a, 3 * a + 1, 3 * a + 2]
+                a = parents[a]
+            acc = sum((expected[g] / m[b, g] * axes[b, g] for g in inboard), np.zeros(3))
+            pd = m[b, h] / lam[b, h] ** 2 * (tx[b, h] - x[b, h]) + 2.0 * m[b, h] / lam[b, h] * (txd[b, h] - xd[b, h])
+            expected[h] = pd + m[b, h] * acc @ axes[b, h]
+        np.testing.assert_allclose(tau[b], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("options", [{}, {"inertia": "local", "parent_compensation": False},
+                                     {"gravity_compensation": False}])
+@pytest.mark.parametrize("limit_nm", [80.0, 3.0])
+def test_mujoco_track_is_the_reference_controller(options, limit_nm):
+    """The engine's own loop (MuJoCo's composite moments, axes, gravity compensation and torque clamp, the PD and
+    parent-torque compensation in between) against the reference path (every term in NumPy, torques through
+    qfrc_applied, one mj_step each): the punch window of 60 steps, with torque limits that never and that often
+    clip. Same torques, so the angles agree to round-off: ~1e-15 rad per step, a few 1e-12 rad after the window
+    (atol 1e-9 rad on a motion of 2 rad), and the same clipped hinge-steps."""
+    from dataclasses import replace
+
+    from kdfaces.articulated.punch import punch_trajectory
+
+    model = replace(arm_chain_model(), torque_limits=np.full((4, 3), limit_nm))
+    traj, t_i, _ = punch_trajectory(model)
+    h, n = 0.005, 60
+    tq, tqd = traj.evaluate(t_i - 0.3 + h * (np.arange(n) + 1), 1)[:2]
+    q0, qd0 = traj.evaluate([t_i - 0.3], 1)[:2]
+    ref_ctrl, ctrl = OnTheBeat(model, **options), OnTheBeat(model, **options)
+    ref = make_engine("mujoco", model, 1, h)
+    ref.set_state(q0, qd0)
+    expected = []
+    for k in range(n):
+        q, qd = ref.state()
+        ref.step(*ref_ctrl.torques(q, qd, tq[k][None], tqd[k][None], 0.12, split_damping=True))
+        expected.append(ref.state()[0][0])
+    eng = make_engine("mujoco", model, 1, h, controller=ctrl)
+    eng.set_state(q0, qd0)
+    got = np.empty((n, 1, 4, 3))
+    eng.track(tq[:, None], tqd[:, None], 0.12, record=got)
+    np.testing.assert_allclose(got[:, 0], np.array(expected), rtol=0, atol=1e-9)
+    assert np.ptp(got[:, 0], axis=0).max() > 1.0  # the arm does move
+    assert ctrl.clipped == ref_ctrl.clipped and (ctrl.clipped > 100) == (limit_nm < 10)
+    with pytest.raises(KDInputError, match="track"):
+        eng.step(np.zeros((1, 4, 3)))
+
+
 def test_mujoco_and_newton_agree_on_a_free_swing():
     pytest.importorskip("newton")
     model = _two_link()
@@ -136,3 +205,20 @@ def test_skeletal_kd_through_the_protocol_and_ikd_on_the_fist():
     q = again.angles_from_points(simulate_kd(again, traj, [t_i], 0.3, step_s=0.01)[0])
     np.testing.assert_allclose(again.points(q[None])[0], simulate_kd(again, traj, [t_i], 0.3, step_s=0.01)[0],
                                atol=1e-12)
+
+
+def test_an_unstable_step_raises_and_writes_no_log(tmp_path, monkeypatch):
+    """MuJoCo resets a world whose acceleration is NaN/huge and logs to MUJOCO_LOG.TXT in the working folder: the
+    engine must say the simulation blew up instead, write nothing, and leave MuJoCo's warning handler as it was."""
+    import mujoco
+
+    from kdfaces.errors import SimulationBlowUpError
+
+    monkeypatch.chdir(tmp_path)
+    eng = make_engine("mujoco", _pendulum(), 1, 0.002)
+    eng.set_state(np.zeros((1, 1, 3)), np.zeros((1, 1, 3)))
+    eng.step(np.zeros((1, 1, 3)))  # a sane step passes
+    with pytest.raises(SimulationBlowUpError, match="unstable"):
+        eng.step(np.full((1, 1, 3), 1e300))
+    assert list(tmp_path.iterdir()) == []
+    assert mujoco.get_mju_user_warning() is None

@@ -93,6 +93,26 @@ def test_batched_kd_equals_per_frame_and_reruns_bit_for_bit(small):
     np.testing.assert_array_equal(x, simulate_kd(FaceSystem(iterative), traj, times, 0.4, step_s=H))
 
 
+def test_one_state_split_over_two_threads_and_the_parallel_path_agree(small):
+    """The scrub path on two threads splits one state's vertices (seam clusters fitted by both threads): the same
+    bits as one thread. The GPU's two-launch path, run on the CPU, computes the same step."""
+    _, traj, model = small
+    one = FaceSystem(model)
+    two = FaceSystem(model, threads=2)
+    for t in traj.frame_times[[10, 30, 31, 49]]:
+        x = simulate_kd(one, traj, [t], 0.4, step_s=H)
+        np.testing.assert_array_equal(simulate_kd(two, traj, [t], 0.4, step_s=H), x)
+        np.testing.assert_allclose(simulate_kd(FaceSystem(model, kernels="parallel"), traj, [t], 0.4, step_s=H), x,
+                                   rtol=0, atol=10 * EPS32 * 0.7)
+    part = two._partition(2)
+    verts = part.vertices.numpy()
+    assert sorted(verts) == list(range(model.num_vertices))  # every vertex advanced by exactly one thread
+    assert part.slots < 2 * model.clusters.num_clusters  # the seam is shared, not the whole mesh
+    two.close()
+    with pytest.raises(KDInputError, match="kernels"):
+        FaceSystem(model, kernels="fast")
+
+
 @pytest.fixture(scope="module")
 def demo_short(default_rig):
     """The demo's first 2.4 s (head turn, jaw open, blink) with the demo's dynamics."""

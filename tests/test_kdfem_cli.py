@@ -8,7 +8,7 @@ from kdfem.cli import main
 def test_kdfem_demo(tmp_path):
     assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5"]) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert set(s) == {"hat", "fps", "frames", "kd", "outputs"}
+    assert set(s) == {"hat", "fps", "frames", "kd", "reduced", "outputs"}
     assert set(s["hat"]) == {"nodes", "tets", "min_tet_volume_m3", "min_dihedral_deg"}
     assert s["hat"]["min_tet_volume_m3"] > 0 and s["hat"]["min_dihedral_deg"] > 0
     kd = s["kd"]
@@ -17,6 +17,11 @@ def test_kdfem_demo(tmp_path):
     sweep = sorted(kd["sweep"], key=lambda r: r["window_s"])
     assert sweep[-1]["max_error_vs_full_m"] < 0.25 * sweep[0]["max_error_vs_full_m"]
     assert all((tmp_path / p).stat().st_size > 10_000 for p in s["outputs"])
+    red = s["reduced"]  # the reduced hat per frame against the full simulation (tip and largest vertex error)
+    assert len(red["per_frame"]["tip_error_mm"]) == len(red["per_frame"]["time_s"]) == s["frames"]
+    assert red["max_tip_error_mm"] <= 0.10 * red["peak_tip_swing_mm"]
+    assert red["max_tip_error_mm"] <= red["max_vertex_error_mm"] + 1e-9
+    assert red["ms_per_state"] < kd["ms_per_state"]
 
 
 def test_kdfem_demo_adaptive_windows(tmp_path):

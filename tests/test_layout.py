@@ -102,8 +102,8 @@ def test_few_modules_at_the_top(pkg, limit):
 
 
 @pytest.mark.parametrize("pkg", ["kdfaces", "kdfaces.rig", "kdfaces.motion", "kdfaces.dynamics", "kdfaces.ikd",
-                                 "kdfaces.articulated", "kdfaces.io", "kdfaces.viz", "kdfaces.shots", "kdfem",
-                                 "kdfem.geometry", "kdfem.fem", "kdfem.modal", "kdfem.scenes"])
+                                 "kdfaces.bake", "kdfaces.articulated", "kdfaces.io", "kdfaces.viz", "kdfaces.shots",
+                                 "kdfem", "kdfem.geometry", "kdfem.fem", "kdfem.modal", "kdfem.scenes"])
 def test_public_names_import(pkg):
     import importlib
 

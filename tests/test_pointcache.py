@@ -17,7 +17,14 @@ from kdfaces import FaceAnimation, KDInputError, KeyframeCurve, KinematicTraject
 from kdfaces.cli import main as kdfaces_main
 from kdfaces.errors import KDIOError
 from kdfaces.io.export import add_export_option, export_trajectory
-from kdfaces.io.pointcache import read_pc2, read_usd, write_pc2, write_usd
+from kdfaces.io.pointcache import (
+    read_pc2,
+    read_usd,
+    write_pc2,
+    write_pc2_chunks,
+    write_usd,
+    write_usd_chunks,
+)
 from kdfaces.io.rigfiles import load_obj_folder
 
 pxr = pytest.importorskip("pxr")
@@ -190,12 +197,24 @@ def test_failed_write_keeps_old_file_and_no_partial(tmp_path, monkeypatch, shot)
     path = write_pc2(tmp_path / "a.pc2", x, times)
     before = path.read_bytes()
 
-    def disk_full(self, data):
-        with open(self, "wb") as fh:
-            fh.write(data[: len(data) // 2])
-        raise OSError(28, "No space left on device")
+    class DiskFull:  # the disk fills up after the first block (the header): half a file, then ENOSPC
+        def __init__(self, path, mode):
+            self.fh, self.blocks = open(path, mode), 0
 
-    monkeypatch.setattr("pathlib.Path.write_bytes", disk_full)
+        def write(self, data):
+            self.blocks += 1
+            if self.blocks > 1:
+                self.fh.write(bytes(data)[: len(data) // 2])
+                raise OSError(28, "No space left on device")
+            return self.fh.write(data)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+    monkeypatch.setattr("kdfaces.io.pointcache.open", DiskFull, raising=False)  # what the PC2 writer opens
     with pytest.raises(KDIOError, match="No space left"):
         write_pc2(path, x[:3], times[:3])
     monkeypatch.undo()
@@ -212,3 +231,36 @@ def test_export_rig_verb(tmp_path, rig):
     np.testing.assert_allclose(back.neutral, rig.neutral, rtol=0, atol=1e-9)  # OBJ text: 9 significant digits
     np.testing.assert_allclose(back.deltas[order], rig.deltas, rtol=0, atol=2e-9)
     np.testing.assert_array_equal(back.faces, rig.faces)
+
+
+@pytest.mark.parametrize("unit_m", [1.0, 0.01])
+def test_caches_written_chunk_by_chunk_equal_the_whole_array(tmp_path, rig, shot, unit_m):
+    """What a bake writes from its float32 store, block by block: a PC2 of the same bytes as the float64 array's
+    (positions round to float32 metres before the unit conversion in both), a USD stage of the same content."""
+    times, x = shot
+    blocks = [x[i:i + 6].astype(np.float32) for i in range(0, len(x), 6)]  # 20 frames: 6 + 6 + 6 + 2
+    n = rig.num_vertices
+    a = write_pc2(tmp_path / "a.pc2", x, times, unit_m=unit_m)
+    b = write_pc2_chunks(tmp_path / "b.pc2", iter(blocks), times, num_vertices=n, unit_m=unit_m)
+    assert a.read_bytes() == b.read_bytes()
+    polygons = (rig.polygon_counts, rig.polygon_corners)
+    for suffix in (".usdc", ".usda"):
+        a = write_usd(tmp_path / f"a{suffix}", x, times, rig.faces, polygons=polygons, uvs=rig.uvs, unit_m=unit_m)
+        b = write_usd_chunks(tmp_path / f"b{suffix}", iter(blocks), times, rig.faces, num_vertices=n,
+                             polygons=polygons, uvs=rig.uvs, unit_m=unit_m)
+        ra, rb = read_usd(a), read_usd(b)
+        assert np.array_equal(ra.positions, rb.positions) and np.array_equal(ra.times, rb.times)
+        assert (ra.fps, ra.meters_per_unit) == (rb.fps, rb.meters_per_unit)
+        assert np.array_equal(ra.polygon_corners, rb.polygon_corners) and np.array_equal(ra.uvs, rb.uvs)
+
+
+def test_chunked_writers_check_the_frame_count_and_leave_no_file(tmp_path, rig, shot):
+    times, x = shot
+    n = rig.num_vertices
+    with pytest.raises(KDInputError, match="19 frames of positions for 20 frame times"):
+        write_pc2_chunks(tmp_path / "a.pc2", [x[:10], x[10:19]], times, num_vertices=n)
+    with pytest.raises(KDInputError, match="more frames of positions than the 20"):
+        write_usd_chunks(tmp_path / "a.usdc", [x, x[:1]], times, rig.faces, num_vertices=n)
+    with pytest.raises(KDInputError, match=rf"expected shape \(k, {n}, 3\)"):
+        write_pc2_chunks(tmp_path / "a.pc2", [x[:, :10]], times, num_vertices=n)
+    assert list(tmp_path.iterdir()) == []

@@ -120,3 +120,28 @@ def test_hat_refuses_a_corrected_face_trajectory(hat, default_rig):
     corr, _ = build_correction([c], traj.state_shape)
     with pytest.raises(KDInputError, match="correct the joint trajectory"):
         simulate_kd(system, CorrectedTrajectory(traj, corr), [1.0], 0.1, step_s=0.01)
+
+
+@pytest.fixture(scope="module")
+def reduced_hat(hat):
+    from kdfem.fem.reduced import ReducedHatSystem
+
+    system, joints = hat
+    return ReducedHatSystem(system.model, embedding=system.embedding, modes=24), joints
+
+
+def test_reduced_hat_obeys_the_protocol_and_ikd_moves_its_tip_onto_a_target(reduced_hat):
+    """The reduced hat (modes in the head frame) is a KD system like the full one: the same protocol run, and IKD on
+    posture lands its tip on a target 1.3 cm away."""
+    system, joints = reduced_hat
+    tip = int(np.argmax(system.rest_equilibrium[:, 1]))
+    t = 5.2
+    before = simulate_kd(system, joints, [t], 0.3, step_s=0.01)[0, tip]
+    target = before + np.array([0.0, -0.012, 0.006])
+    c = end_effector_constraint(t, target, [tip], GaussianBasis(t, 0.3), num_vertices=system.model.mesh.num_nodes)
+    times = np.round(np.arange(4.6, 5.6, 0.2), 2)
+    r = _protocol(system, joints, step_s=0.01, window_s=0.3, times=times, constraint=c)
+    assert r.converged, (r.reason, r.history)
+    after = simulate_kd(system, r.trajectory, [t], 0.3, step_s=0.01)[0, tip]
+    assert np.linalg.norm(after - target) <= 1e-5
+    assert r.correction.state_shape == joints.state_shape

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 PACKAGES = ["kdfaces", "kdfaces.rig", "kdfaces.motion", "kdfaces.dynamics", "kdfaces.ikd", "kdfaces.io",
-            "kdfaces.articulated",
+            "kdfaces.bake", "kdfaces.articulated",
             "kdfaces.viz", "kdfaces.shots", "kdfem", "kdfem.geometry", "kdfem.fem", "kdfem.modal",
-            "kdfem.scenes"]
+            "kdfem.scenes", "kdfem.viewer"]
 
 
 def _project(obj) -> bool:

@@ -88,21 +88,35 @@ def test_sample_cache_returns_the_same_values(default_rig):
 
 
 def test_one_off_passes_leave_the_sample_cache_alone(default_rig):
-    # the window estimate scans the whole shot and the face bake keeps its own rows: neither may fill the
-    # trajectory's sample cache (on a 19k-vertex rig that was 256 MiB of samples nobody read again)
+    # the window estimate scans the whole shot: it may not fill the trajectory's sample cache (on a 19k-vertex rig
+    # that was 256 MiB of samples nobody read again)
     from kdfaces.dynamics import FaceModel, FaceSystem
-    from kdfaces.kd import simulate_kd
     from kdfaces.window import automatic_window
 
     traj = KinematicTrajectory(default_rig, demo_animation())
-    system = FaceSystem(FaceModel.from_rig(default_rig))
-    window = automatic_window(system, traj).window_s
-    simulate_kd(system, traj, traj.frame_times[::10], window)
+    automatic_window(FaceSystem(FaceModel.from_rig(default_rig)), traj)
     assert len(traj._cache) == 0
     t = traj.frame_times[:5]
     for a, b in zip(traj.scan(t), traj.evaluate(t)):  # the scan is the same evaluation
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-15)
     assert len(traj._cache) == 5
+
+
+def test_a_scan_of_a_corrected_trajectory_keeps_the_correction(default_rig):
+    # CorrectedTrajectory forwards unknown attributes to its base; a scan must not fall through to the base's and
+    # silently drop f (IKD then never moves)
+    from kdfaces.ikd import CorrectedTrajectory, Correction, Slot, make_basis
+    from kdfaces.motion import scan_trajectory
+
+    traj = KinematicTrajectory(default_rig, demo_animation())
+    corr = Correction([Slot(2.0, "position", make_basis("gaussian", 2.0, width_s=0.3))], traj.state_shape)
+    corr.values[0] = 0.01
+    corr.update()
+    fixed = CorrectedTrajectory(traj, corr)
+    t = np.array([1.9, 2.0, 2.1])
+    for a, b in zip(scan_trajectory(fixed, t, 1), fixed.evaluate(t, 1)):
+        np.testing.assert_array_equal(a, b)
+    assert np.abs(scan_trajectory(fixed, t, 0)[0] - traj.evaluate(t, 0)[0]).max() > 0.005
 
 
 def test_scans_of_lower_orders_skip_the_derivatives_but_not_a_bit_of_the_rest(default_rig):

@@ -17,6 +17,11 @@ in t̂ (``timing="paper"``, n = 9.49). A critically damped step from rest, e(t) 
 (1 + n)e^{−n} = 1 − f (n = 3.89 for f = 0.9), so that 90 % of a step is reached exactly at t̂, which is what the
 paper's keyframe timing means. Both are available; the face model (:mod:`kdfaces.dynamics.gains`) keeps the
 paper's n.
+
+:meth:`OnTheBeat.torques` computes every term in NumPy (the reference path). An engine built for the controller runs
+it in its own step instead (:meth:`~kdfaces.articulated.MuJoCoEngine.track`): MuJoCo's C pipeline supplies the
+axes, the composite moments, the gravity compensation and the torque clamp, and :meth:`OnTheBeat.hinge_torques`
+adds eq. 4 and eq. 8–10 in between; both give the same torques.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dtrtrs
 from scipy.optimize import brentq
 
 from ..errors import KDInputError
@@ -91,6 +97,7 @@ class OnTheBeat:
                     P[3 * j + c, 3 * a: 3 * a + 3] = 1.0
                 P[3 * j + c, 3 * j: 3 * j + c] = 1.0
         self._inboard = P
+        self._eye = np.eye(3 * J)[None]
         self.clipped = 0
 
     def gains(self, q: np.ndarray, settle_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -100,32 +107,28 @@ class OnTheBeat:
         return self._gains(m, settle_s) + (m,)
 
     def _gains(self, m, settle_s):
-        lam = np.broadcast_to(np.asarray(settle_s, dtype=np.float64), m.shape) / self.n
-        if not (lam > 0).all():
-            raise KDInputError("settle time: expected positive seconds")
+        lam = self.lambdas(settle_s, m.shape).reshape(m.shape)
         return m / lam**2, 2.0 * self.damping_ratio * m / lam
 
     def torques(self, q, qd, target_q, target_qd, settle_s, *, split_damping: bool = False):
         """Hinge torques (B, J, 3) [N·m] towards (θ̂, ω̂) = (``target_q``, ``target_qd``) (B, J, 3) in the time
         ``settle_s`` [s] from the state (θ, ω) = (``q``, ``qd``) (eq. 4, 7–10, gravity compensation, limits).
 
+        This is the reference path: every term in NumPy from :meth:`ArticulatedModel.terms`. An engine that runs the
+        controller in its own loop (:meth:`~kdfaces.articulated.MuJoCoEngine.track`) takes the moments, axes and
+        gravity from its C pipeline and calls :meth:`hinge_torques` alone; both give the same torques.
+
         With ``split_damping`` it returns (τ + k_d·ω, k_d (B, J, 3)): an engine that integrates joint damping
         implicitly (MuJoCo's Euler) applies −k_d·ω at the new velocity itself, which keeps the stiff modes of light
         links between heavy ones (the neck under the head) stable at large steps."""
         q, qd = np.asarray(q, dtype=np.float64), np.asarray(qd, dtype=np.float64)
+        shape = q.shape
         axes, m, grav = self.model.terms(q, local=self.inertia == "local")
-        kp, kd = self._gains(m, settle_s)
-        tau = kp * (np.asarray(target_q) - q) + kd * (np.asarray(target_qd) - qd)
-        if self.parent_compensation:
-            # τ_h = PD_h + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ_g/m_g) s_g (eq. 8–10): linear in τ, and P is strictly
-            # lower triangular, so (I − diag(m) N diag(1/m)) τ = PD with N[h, g] = P[h, g] (s_h·s_g) is solved by
-            # forward substitution (one batched triangular solve; the paper's single root-to-leaf pass)
-            B = len(q)
-            s = axes.reshape(B, -1, 3)
-            mm = m.reshape(B, -1)
-            N = self._inboard[None] * np.einsum("bhi,bgi->bhg", s, s)
-            A = np.eye(N.shape[1])[None] - mm[:, :, None] * N / mm[:, None, :]
-            tau = np.linalg.solve(A, tau.reshape(B, -1, 1)).reshape(tau.shape)
+        B = shape[0]
+        tau, kd = self.hinge_torques(m.reshape(B, -1), axes.reshape(B, -1, 3), q.reshape(B, -1), qd.reshape(B, -1),
+                                     np.broadcast_to(target_q, shape).reshape(B, -1),
+                                     np.broadcast_to(target_qd, shape).reshape(B, -1), self.lambdas(settle_s, shape))
+        tau, kd = tau.reshape(shape), kd.reshape(shape)
         if self.gravity_compensation:
             tau = tau + grav
         lim = self.model.torque_limits[None]
@@ -135,3 +138,33 @@ class OnTheBeat:
             tau = np.clip(tau, -lim, lim)
         # implicit damping: the engine applies −k_d·ω at the end of the step, so the explicit −k_d·ω comes out here
         return (tau + kd * qd, kd) if split_damping else tau
+
+    def lambdas(self, settle_s, shape) -> np.ndarray:
+        """The time constants λ = t̂/n (B, 3J) [s] of times t̂ ``settle_s`` [s] (scalar, (J, 3) or (B, J, 3)) for
+        poses of ``shape`` (B, J, 3) (eq. 4)."""
+        lam = np.broadcast_to(np.asarray(settle_s, dtype=np.float64), shape).reshape(shape[0], -1) / self.n
+        if not (lam > 0).all():
+            raise KDInputError("settle time: expected positive seconds")
+        return lam
+
+    def hinge_torques(self, moments, axes, q, qd, target_q, target_qd, lam):
+        """The PD torques with parent-torque compensation, before gravity compensation and limits, and the damping
+        gains: (τ (B, D) [N·m], k_d (B, D) [N·m·s/rad]) for the D = 3J hinges (root first) of B poses.
+
+        Args:
+            moments: m (B, D) [kg·m²], composite (eq. 7) or local; axes: world hinge axes s (B, D, 3);
+            q, qd: θ, ω (B, D); target_q, target_qd: θ̂, ω̂ (B, D); lam: λ = t̂/n (B, D) [s].
+
+        τ_h = m_h/λ²(θ̂ − θ) + 2ζ m_h/λ (ω̂ − ω) + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ_g/m_g) s_g (eq. 4, 8–10)."""
+        c = (2.0 * self.damping_ratio) / lam
+        kd = c * moments
+        acc = (target_q - q) / lam**2 + c * (target_qd - qd)  # τ/m of eq. 4: the hinge's own angular acceleration
+        if self.parent_compensation:
+            # in u = τ/m, eq. 8–10 read u_h = acc_h + Σ_g P[h, g] (s_h·s_g) u_g: (I − N) u = acc, N strictly lower
+            # triangular (in-board hinges come first), solved by forward substitution — the paper's single
+            # root-to-leaf pass — one member at a time, so a state does not depend on the batch it is in
+            A = self._eye - self._inboard * (axes @ np.swapaxes(axes, 1, 2))
+            for b in range(len(acc)):
+                acc[b] = dtrtrs(A[b], acc[b], lower=1, unitdiag=1)[0]
+        tau = moments * acc
+        return tau, kd

@@ -6,7 +6,8 @@ any articulated-body algorithm of ours (no home-made solver). The KD windows of 
 
 - :class:`MuJoCoEngine`: one MJCF model holding B copies of the chain (bodies nested as the skeleton, each with
   hinges y, x, z about its pivot, no geometry, no contacts), ``mj_step`` with semi-implicit Euler; the torques go
-  to ``qfrc_applied``.
+  to ``qfrc_applied``. Built for a controller (``controller=``), it also runs On the Beat control in its own loop
+  (:meth:`MuJoCoEngine.track`): everything that depends on the pose comes from MuJoCo's C pipeline each step.
 - :class:`NewtonEngine`: a ``ModelBuilder`` chain of D6 joints (angular axes y, x, z) replicated into B worlds,
   ``SolverFeatherstone`` on the Warp CPU device; torques go to ``control.joint_f``.
 
@@ -16,9 +17,11 @@ measures both on the batched neck-chain KD.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
-from ..errors import KDInputError
+from ..errors import KDInputError, SimulationBlowUpError
 from .model import ArticulatedModel
 
 __all__ = ["ENGINES", "DEFAULT_ENGINE", "MuJoCoEngine", "NewtonEngine", "make_engine"]
@@ -33,23 +36,54 @@ def _fmt(v) -> str:
 
 
 class MuJoCoEngine:
-    """B copies of ``model`` in one MuJoCo model; state is (q, q̇), each (B, J, 3) [rad, rad/s]."""
+    """B copies of ``model`` in one MuJoCo model; state is (q, q̇), each (B, J, 3) [rad, rad/s].
+
+    With ``controller`` (an :class:`~kdfaces.articulated.OnTheBeat` of the same model) the model also carries what
+    :meth:`track` needs: one motor per hinge, MuJoCo's gravity compensation (``gravcomp`` on every body, routed
+    through the joints' actuators with ``actuatorgravcomp``) when the controller compensates gravity, and the
+    torque limits as the joints' ``actuatorfrcrange``, which MuJoCo applies to the sum of control torque and
+    gravity compensation, as :meth:`OnTheBeat.torques` clips it. Such an engine steps by :meth:`track` only."""
 
     name = "mujoco"
 
-    def __init__(self, model: ArticulatedModel, batch: int, step_s: float):
+    def __init__(self, model: ArticulatedModel, batch: int, step_s: float, *, controller=None):
         import mujoco
 
         self.mujoco, self.model, self.batch, self.step_s = mujoco, model, int(batch), float(step_s)
+        if controller is not None and controller.model is not model:
+            raise KDInputError("MuJoCo engine: the controller drives another articulated model")
+        self.controller = controller
         self.mj = mujoco.MjModel.from_xml_string(self.mjcf())
         self.data = mujoco.MjData(self.mj)
         if self.mj.nv != self.batch * model.dofs:
             raise KDInputError(f"MuJoCo model: {self.mj.nv} DOFs, expected {self.batch * model.dofs}")
+        if controller is not None:
+            m, D = self.mj, self.mj.nv
+            self._diag = m.M_rowadr + m.M_rownnz - 1  # the diagonal of the sparse joint-space inertia M
+            if (self._diag < 0).any() or m.nu != D or not np.array_equal(m.actuator_trnid[:, 0], np.arange(D)):
+                raise KDInputError("MuJoCo engine: unexpected layout of the control model")
+            self._body = m.jnt_bodyid[m.dof_jntid]  # each hinge's link
+            self._limits = np.tile(model.torque_limits.ravel(), self.batch)
+            self._limited = np.isfinite(self._limits).any()
 
     def mjcf(self) -> str:
         """The MJCF text of the replicated chain."""
         m, sk = self.model, self.model.skeleton
         children = {j: [k for k in range(m.num_joints) if sk.parents[k] == j] for j in range(-1, m.num_joints)}
+
+        ctrl = self.controller
+        axes = (("yaw", "0 1 0"), ("pitch", "1 0 0"), ("roll", "0 0 1"))
+        gravcomp = ' gravcomp="1"' if ctrl is not None and ctrl.gravity_compensation else ""
+
+        def joint(b: int, j: int, c: int) -> str:
+            a, ax = axes[c]
+            extra = ""
+            if ctrl is not None:
+                lim = m.torque_limits[j, c]
+                extra = ' actuatorgravcomp="true"' + (f' actuatorfrclimited="true" actuatorfrcrange="{-lim:.17g} '
+                                                      f'{lim:.17g}"' if np.isfinite(lim) else "")
+            return (f'<joint name="w{b}_{sk.names[j]}_{a}" type="hinge" axis="{ax}" damping="0" armature="0" '
+                    f'limited="false"{extra}/>')
 
         def body(j: int, b: int) -> str:
             par = sk.parents[j]
@@ -57,16 +91,42 @@ class MuJoCoEngine:
             I = m.inertias[j]
             full = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
             inner = "".join(body(k, b) for k in children[j])
-            joints = "".join(f'<joint name="w{b}_{sk.names[j]}_{a}" type="hinge" axis="{ax}" damping="0" '
-                             f'armature="0" limited="false"/>'
-                             for a, ax in (("yaw", "0 1 0"), ("pitch", "1 0 0"), ("roll", "0 0 1")))
-            return (f'<body name="w{b}_{sk.names[j]}" pos="{_fmt(pos)}">'
+            joints = "".join(joint(b, j, c) for c in range(3))
+            return (f'<body name="w{b}_{sk.names[j]}" pos="{_fmt(pos)}"{gravcomp}>'
                     f'<inertial pos="{_fmt(m.coms[j] - sk.positions[j])}" mass="{m.masses[j]:.12g}" '
                     f'fullinertia="{_fmt(full)}"/>{joints}{inner}</body>')
 
         worlds = "".join(body(j, b) for b in range(self.batch) for j in children[-1])
+        motors = ""
+        if ctrl is not None:  # one motor per hinge, in DOF order (worlds, joints in skeleton order, y x z)
+            motors = "<actuator>" + "".join(f'<motor joint="w{b}_{sk.names[j]}_{a}" gear="1"/>'
+                                            for b in range(self.batch) for j in range(m.num_joints)
+                                            for a, _ in axes) + "</actuator>"
         return (f'<mujoco model="{m.name}"><option timestep="{self.step_s:.12g}" gravity="{_fmt(m.gravity)}" '
-                f'integrator="Euler"><flag contact="disable"/></option><worldbody>{worlds}</worldbody></mujoco>')
+                f'integrator="Euler"><flag contact="disable"/></option><worldbody>{worlds}</worldbody>{motors}'
+                '</mujoco>')
+
+    @contextlib.contextmanager
+    def _watched(self, what: str):
+        """Run MuJoCo steps with its warnings captured (MuJoCo's own handler would print them and append to
+        MUJOCO_LOG.TXT in the working folder; the previous handler is restored after) and raise
+        :class:`~kdfaces.errors.SimulationBlowUpError` when a step went unstable (MuJoCo then silently resets the
+        state, which must never reach a KD result)."""
+        mujoco = self.mujoco
+        bad = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        before = int(self.data.warning[bad].number)
+        messages: list[str] = []
+        previous = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(messages.append)
+        try:
+            yield
+        finally:
+            mujoco.set_mju_user_warning(previous)
+        if int(self.data.warning[bad].number) > before:
+            first = messages[0] if messages else "NaN, Inf or huge acceleration"
+            raise SimulationBlowUpError(f"articulated simulation ({what}, MuJoCo, step {self.step_s:g} s) went "
+                                        f"unstable: {first} Use a smaller substep, or turn off parent-torque "
+                                        "compensation on chains with a heavy end (e.g. the neck under the head)")
 
     def set_state(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Set every world's joint angles and rates, each (B, J, 3)."""
@@ -85,10 +145,79 @@ class MuJoCoEngine:
     def step(self, tau: np.ndarray, damping: np.ndarray | None = None) -> None:
         """Advance every world by one step under hinge torques ``tau`` (B, J, 3) [N·m], with optional joint
         damping ``damping`` (B, J, 3) [N·m·s/rad] that MuJoCo integrates implicitly."""
+        if self.controller is not None:
+            raise KDInputError("MuJoCo engine: built for a controller (gravity compensation and torque limits in "
+                               "the model), it steps by track(); build one without controller= for step()")
         self.data.qfrc_applied[:] = np.asarray(tau, dtype=np.float64).ravel()
         if damping is not None:
             self.mj.dof_damping[:] = np.asarray(damping, dtype=np.float64).ravel()
-        self.mujoco.mj_step(self.mj, self.data)
+        with self._watched("step"):
+            self.mujoco.mj_step(self.mj, self.data)
+
+    def track(self, targets, rates, settle_s, *, record=None, record_rates=None) -> None:
+        """Advance every world ``len(targets)`` steps under the engine's On the Beat controller, step k pulling
+        towards (θ̂, ω̂) = (``targets[k]``, ``rates[k]``), each (steps, B, J, 3) [rad, rad/s] (broadcast), in the
+        time ``settle_s`` [s] (scalar, (J, 3) or (B, J, 3)); the angles (rates) after every step are written to
+        ``record`` (``record_rates``), (steps, B, J, 3), when given.
+
+        Each step splits MuJoCo's ``mj_step`` around the control (``mj_step1``, the torques, ``mj_step2``): the
+        position stage computes the hinge axes (``xaxis``), the composite moments about them (the diagonal of the
+        joint-space inertia M from the composite-rigid-body algorithm, equal to eq. 7) and the gravity
+        compensation (``qfrc_gravcomp``) in C; :meth:`OnTheBeat.hinge_torques` adds eq. 4 and the parent-torque
+        compensation of eq. 8–10 (a triangular solve over the 3J hinges, the only per-step work left in NumPy; a
+        pose-dependent gain and a coupling between hinges that no MuJoCo actuator expresses); the motors apply it,
+        MuJoCo adds the gravity compensation and clamps the sum to the torque limits, and integrates the damping
+        k_d implicitly. Same torques as :meth:`OnTheBeat.torques` with ``split_damping`` and :meth:`step`."""
+        ctrl = self.controller
+        if ctrl is None:
+            raise KDInputError("MuJoCo engine: track() needs an engine built with controller=")
+        m, d = self.mj, self.data
+        B, D = self.batch, self.model.dofs
+        shape = (B, self.model.num_joints, 3)
+        targets = np.asarray(targets, dtype=np.float64)
+        steps = len(targets)
+        tq = np.broadcast_to(targets, (steps, *shape)).reshape(steps, B, D)
+        tqd = np.broadcast_to(np.asarray(rates, dtype=np.float64), (steps, *shape)).reshape(steps, B, D)
+        lam = ctrl.lambdas(settle_s, shape)
+        local = ctrl.inertia == "local"
+        q, qd = d.qpos.reshape(B, D), d.qvel.reshape(B, D)  # views into MjData
+        axes = d.xaxis.reshape(B, D, 3)
+        applied, damping, motors = d.qfrc_applied.reshape(B, D), m.dof_damping.reshape(B, D), d.ctrl.reshape(B, D)
+        damper = d.qfrc_damper.reshape(B, D)
+        with self._watched("On the Beat tracking"):
+            self._track(steps, tq, tqd, lam, local, shape, q, qd, axes, applied, damping, motors, damper, record,
+                        record_rates)
+
+    def _track(self, steps, tq, tqd, lam, local, shape, q, qd, axes, applied, damping, motors, damper, record,
+               record_rates) -> None:
+        mujoco, m, d, ctrl = self.mujoco, self.mj, self.data, self.controller
+        B, D = self.batch, self.model.dofs
+        for k in range(steps):
+            mujoco.mj_step1(m, d)
+            moments = (self._local_moments() if local else d.M[self._diag]).reshape(B, D)
+            tau, kd = ctrl.hinge_torques(moments, axes, q, qd, tq[k], tqd[k], lam)
+            motors[:] = tau
+            # τ holds the damping −k_d·ω explicitly; mj_step1 already added the joints' damping at the previous
+            # gains, −k_d'·ω (qfrc_damper): cancel it, and let the integrator apply −k_d·(ω_new − ω) implicitly
+            # with the new gains, so the step sees −k_d·ω_new as in OnTheBeat.torques(split_damping=True)
+            np.negative(damper, out=applied)
+            damping[:] = kd
+            mujoco.mj_step2(m, d)
+            if self._limited:
+                ctrl.clipped += int(np.count_nonzero(np.abs(d.qfrc_actuator) >= self._limits))
+            if record is not None:
+                record[k] = q.reshape(shape)
+            if record_rates is not None:
+                record_rates[k] = qd.reshape(shape)
+
+    def _local_moments(self) -> np.ndarray:
+        """Each hinge's moment about its axis of its own link only (On the Beat §6's "local" gains) from MuJoCo's
+        link frames: s·I s + m‖(c − d) × s‖², I the link's inertia about its centre of mass c, d the pivot."""
+        m, d, b = self.mj, self.data, self._body
+        s = d.xaxis
+        sR = np.einsum("ni,nij->nj", s, d.ximat[b].reshape(-1, 3, 3))  # s in the link's principal axes
+        arm = np.cross(d.xipos[b] - d.xanchor[m.dof_jntid], s)
+        return np.einsum("nj,nj->n", sR * sR, m.body_inertia[b]) + m.body_mass[b] * np.einsum("ni,ni->n", arm, arm)
 
 
 class NewtonEngine:
@@ -96,11 +225,12 @@ class NewtonEngine:
 
     name = "newton"
 
-    def __init__(self, model: ArticulatedModel, batch: int, step_s: float, *, device: str = "cpu"):
+    def __init__(self, model: ArticulatedModel, batch: int, step_s: float, *, device: str = "cpu", controller=None):
         import newton
         import warp as wp
 
         self.newton, self.wp, self.model, self.batch, self.step_s = newton, wp, model, int(batch), float(step_s)
+        self.controller = controller
         sk = model.skeleton
         one = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=tuple(float(g) for g in model.gravity))
         cfg = newton.ModelBuilder.JointDofConfig
@@ -151,14 +281,34 @@ class NewtonEngine:
         self.solver.step(self.s0, self.s1, self.control, None, self.step_s)
         self.s0, self.s1 = self.s1, self.s0
 
+    def track(self, targets, rates, settle_s, *, record=None, record_rates=None) -> None:
+        """:meth:`MuJoCoEngine.track` with the controller's reference torques (:meth:`OnTheBeat.torques`, every
+        term in NumPy) applied explicitly each step."""
+        if self.controller is None:
+            raise KDInputError("Newton engine: track() needs an engine built with controller=")
+        shape = (self.batch, self.model.num_joints, 3)
+        targets = np.asarray(targets, dtype=np.float64)
+        tq = np.broadcast_to(targets, (len(targets), *shape))
+        tqd = np.broadcast_to(np.asarray(rates, dtype=np.float64), tq.shape)
+        for k in range(len(tq)):
+            q, qd = self.state()
+            self.step(self.controller.torques(q, qd, tq[k], tqd[k], settle_s))
+            if record is not None or record_rates is not None:
+                q, qd = self.state()
+                if record is not None:
+                    record[k] = q
+                if record_rates is not None:
+                    record_rates[k] = qd
 
-def make_engine(name: str, model: ArticulatedModel, batch: int, step_s: float):
-    """An engine by name (:data:`ENGINES`) for ``batch`` worlds of ``model`` stepping ``step_s`` [s]."""
+
+def make_engine(name: str, model: ArticulatedModel, batch: int, step_s: float, *, controller=None):
+    """An engine by name (:data:`ENGINES`) for ``batch`` worlds of ``model`` stepping ``step_s`` [s]; with
+    ``controller`` (an :class:`~kdfaces.articulated.OnTheBeat`) it can :meth:`~MuJoCoEngine.track` targets."""
     if name == "mujoco":
-        return MuJoCoEngine(model, batch, step_s)
+        return MuJoCoEngine(model, batch, step_s, controller=controller)
     if name == "newton":
         try:
-            return NewtonEngine(model, batch, step_s)
+            return NewtonEngine(model, batch, step_s, controller=controller)
         except ImportError as e:
             raise KDInputError(f"engine 'newton': not installed ({e}); pip install newton, or use 'mujoco'") from None
     raise KDInputError(f"engine {name!r} unknown; expected one of {ENGINES}")

@@ -206,10 +206,10 @@ class ArticulatedModel:
         moment = np.cross(c - pivots, M[None, :, None] * g)  # gravity's moment about each pivot
         return -np.einsum("bjci,bji->bjc", axes, moment)
 
-    def terms(self, angles: np.ndarray, *, local: bool = False):
-        """Everything the controller needs at poses (B, J, 3) in one vectorized pass: hinge axes (B, J, 3, 3),
-        moments about them (B, J, 3) [kg·m²] (eq. 7, composite or ``local``) and gravity torques (B, J, 3) [N·m]
-        (the same as :meth:`chain_axes`, :meth:`hinge_moments` and :meth:`gravity_torques`, faster)."""
+    def frames(self, angles: np.ndarray, *, with_axes: bool = False):
+        """Lean FK of poses (B, J, 3) [rad]: link rotations R (B, J, 3, 3) (rest → world) and pivots (B, J, 3) [m],
+        and with ``with_axes`` the world hinge axes (B, J, 3, 3) between them (what :func:`chain_axes` gives,
+        without the rig's derivative machinery)."""
         th = np.asarray(angles, dtype=np.float64)
         B, J = th.shape[:2]
         sk = self.skeleton
@@ -221,21 +221,33 @@ class ArticulatedModel:
         L[..., 0, 0], L[..., 0, 1], L[..., 0, 2] = cy * cz + sy * sx * sz, -cy * sz + sy * sx * cz, sy * cx
         L[..., 1, 0], L[..., 1, 1], L[..., 1, 2] = cx * sz, cx * cz, -sx
         L[..., 2, 0], L[..., 2, 1], L[..., 2, 2] = -sy * cz + cy * sx * sz, sy * sz + cy * sx * cz, cy * cx
-        loc = np.empty((B, J, 3, 3))  # hinge axes in the parent's frame
-        loc[..., 0, :] = (0.0, 1.0, 0.0)
-        loc[..., 1, 0], loc[..., 1, 1], loc[..., 1, 2] = cy, 0.0, -sy
-        loc[..., 2, 0], loc[..., 2, 1], loc[..., 2, 2] = sy * cx, -sx, cy * cx
+        if with_axes:
+            loc = np.empty((B, J, 3, 3))  # hinge axes in the parent's frame
+            loc[..., 0, :] = (0.0, 1.0, 0.0)
+            loc[..., 1, 0], loc[..., 1, 1], loc[..., 1, 2] = cy, 0.0, -sy
+            loc[..., 2, 0], loc[..., 2, 1], loc[..., 2, 2] = sy * cx, -sx, cy * cx
+            axes = np.empty_like(loc)
         R = np.empty_like(L)
-        axes = np.empty_like(loc)
         piv = np.empty((B, J, 3))
         for j in range(J):
             p = sk.parents[j]
             if p < 0:
-                R[:, j], axes[:, j], piv[:, j] = L[:, j], loc[:, j], sk.positions[j]
+                R[:, j], piv[:, j] = L[:, j], sk.positions[j]
+                if with_axes:
+                    axes[:, j] = loc[:, j]
             else:
                 R[:, j] = R[:, p] @ L[:, j]
-                axes[:, j] = loc[:, j] @ np.swapaxes(R[:, p], -1, -2)
                 piv[:, j] = piv[:, p] + R[:, p] @ (sk.positions[j] - sk.positions[p])
+                if with_axes:
+                    axes[:, j] = loc[:, j] @ np.swapaxes(R[:, p], -1, -2)
+        return (R, axes, piv) if with_axes else (R, piv)
+
+    def terms(self, angles: np.ndarray, *, local: bool = False):
+        """Everything the controller needs at poses (B, J, 3) in one vectorized pass: hinge axes (B, J, 3, 3),
+        moments about them (B, J, 3) [kg·m²] (eq. 7, composite or ``local``) and gravity torques (B, J, 3) [N·m]
+        (the same as :meth:`chain_axes`, :meth:`hinge_moments` and :meth:`gravity_torques`, faster)."""
+        R, axes, piv = self.frames(angles, with_axes=True)
+        sk = self.skeleton
         c = piv + np.einsum("bjkl,jl->bjk", R, self.coms - sk.positions)
         S = self._subtree()
         if local:
@@ -274,12 +286,13 @@ class ArticulatedModel:
             object.__setattr__(self, "_S", S)
         return S
 
-    def points_world(self, angles: np.ndarray, names=None) -> np.ndarray:
-        """World positions (B, P, 3) [m] of named points (default all, in ``points`` order) at poses (B, J, 3)."""
+    def points_world(self, angles: np.ndarray, names=None, *, frames=None) -> np.ndarray:
+        """World positions (B, P, 3) [m] of named points (default all, in ``points`` order) at poses (B, J, 3)
+        (``frames``: their :meth:`frames`, when already at hand)."""
         names = list(self.points) if names is None else list(names)
-        G, _, _ = chain_axes(self.skeleton, angles)
+        R, piv = self.frames(angles) if frames is None else frames
         out = []
         for n in names:
             j, p = self.point(n)
-            out.append(np.einsum("bkl,l->bk", G[:, j, :3, :3], p) + G[:, j, :3, 3])
-        return np.stack(out, axis=1) if out else np.zeros((len(G), 0, 3))
+            out.append(np.einsum("bkl,l->bk", R[:, j], p - self.skeleton.positions[j]) + piv[:, j])
+        return np.stack(out, axis=1) if out else np.zeros((len(R), 0, 3))

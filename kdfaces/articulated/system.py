@@ -18,14 +18,14 @@ base).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import KDInputError
 from .control import OnTheBeat
 from .engines import DEFAULT_ENGINE, make_engine
-from .model import ArticulatedModel, chain_axes
+from .model import ArticulatedModel
 
 __all__ = ["SkeletalSystem", "Keyframe", "simulate_keyframes", "MARKER_M", "KDJointTrajectory", "kd_joint_trajectory"]
 
@@ -39,6 +39,7 @@ class _State:
     times: np.ndarray
     trajectory: object
     token: int
+    pending: list = field(default_factory=list)  # (θ̂, ω̂) blocks (n, B, J, 3) not yet run on the engine
 
 
 class SkeletalSystem:
@@ -72,7 +73,7 @@ class SkeletalSystem:
     def _engine(self, batch: int, h: float):
         key = (int(batch), round(float(h), 12))
         if key not in self._engines:
-            self._engines[key] = make_engine(self.engine_name, self.model, batch, h)
+            self._engines[key] = make_engine(self.engine_name, self.model, batch, h, controller=self.controller)
         return self._engines[key], key
 
     def _substeps(self, step_s: float) -> tuple[int, float]:
@@ -81,30 +82,45 @@ class SkeletalSystem:
 
     # --- KD protocol ---------------------------------------------------------------------------------------------
     def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
-        """Sample θ_K, θ̇_K at every substep of every window once (one trajectory evaluation per simulate_kd call
-        instead of one per substep)."""
+        """Sample θ_K, θ̇_K at the window starts and every substep of every window once (one trajectory evaluation
+        per simulate_kd call instead of one per step): the window's control sequence."""
         n, h = self._substeps(step_s)
         t0 = np.asarray(start_times, dtype=np.float64)
-        rel = (np.arange(steps * n) + 1) * h  # substep ends
+        rel = np.arange(steps * n + 1) * h  # the start, then the substep ends
         q, qd = trajectory.evaluate((rel[:, None] + t0[None]).ravel(), 1)[:2]
-        shape = (steps * n, len(t0), *q.shape[1:])
+        shape = (steps * n + 1, len(t0), *q.shape[1:])
         self._grid = (getattr(trajectory, "version", id(trajectory)), t0.copy(), float(step_s), n,
                       q.reshape(shape), qd.reshape(shape))
 
-    def _targets(self, trajectory, t0: np.ndarray, step_s: float, k: int, n: int, h: float):
-        """θ_K, θ̇_K at substep k of the step starting at ``t0`` (B,), from the prepared grid when it applies."""
+    def _grid_rows(self, trajectory, t0: np.ndarray, step_s: float | None, n: int | None):
+        """The prepared grid's row offset for window starts ``t0`` (B,) shifted by whole steps, or None."""
         g = getattr(self, "_grid", None)
-        if g is not None and g[0] == getattr(trajectory, "version", id(trajectory)) and g[2] == float(step_s) \
-                and g[3] == n and len(g[1]) == len(t0):
-            j = int(round((t0[0] - g[1][0]) / step_s))
-            if 0 <= j and (j + 1) * n <= len(g[4]) and np.allclose(g[1] + j * step_s, t0, rtol=0, atol=1e-9):
-                return g[4][j * n + k], g[5][j * n + k]
-        return trajectory.evaluate(t0 + (k + 1) * h, 1)[:2]
+        if g is None or g[0] != getattr(trajectory, "version", id(trajectory)) or len(g[1]) != len(t0) \
+                or (step_s is not None and (g[2] != float(step_s) or g[3] != n)):
+            return None
+        j = int(round((t0[0] - g[1][0]) / g[2]))
+        if j < 0 or j * g[3] >= len(g[4]) or np.abs(g[1] + j * g[2] - t0).max() > 1e-9:
+            return None
+        return j * g[3]
+
+    def _targets(self, trajectory, t0: np.ndarray, step_s: float, n: int, h: float):
+        """θ_K, θ̇_K (n, B, J, 3) at the n substep ends of the step starting at ``t0`` (B,), from the prepared grid
+        when it applies."""
+        r = self._grid_rows(trajectory, t0, step_s, n)
+        if r is not None and r + n < len(self._grid[4]):
+            return self._grid[4][r + 1:r + n + 1], self._grid[5][r + 1:r + n + 1]
+        t = (t0[None] + (np.arange(n) + 1)[:, None] * h).ravel()
+        q, qd = trajectory.evaluate(t, 1)[:2]
+        return q.reshape(n, len(t0), *q.shape[1:]), qd.reshape(n, len(t0), *qd.shape[1:])
 
     def initial_state(self, trajectory, times) -> _State:
         """Every member at θ_K(t₀), θ̇_K(t₀) for window starts ``times`` (B,) [s]."""
         t = np.asarray(times, dtype=np.float64)
-        q, qd = trajectory.evaluate(t, 1)[:2]
+        r = self._grid_rows(trajectory, t, None, None)
+        if r == 0:
+            q, qd = self._grid[4][0], self._grid[5][0]
+        else:
+            q, qd = trajectory.evaluate(t, 1)[:2]
         engine, key = self._engine(len(t), self.substep_s)
         engine.set_state(q, qd)
         self._tokens += 1
@@ -113,39 +129,44 @@ class SkeletalSystem:
 
     def step(self, state: _State, trajectory, times, step_s: float) -> None:
         """Advance every member by ``step_s`` [s] in whole engine substeps, the controller tracking θ_K(t), θ̇_K(t)
-        at each substep."""
+        at each substep.
+
+        The targets depend on the trajectory only, not on the state, so the steps are queued and run together,
+        one :meth:`~kdfaces.articulated.MuJoCoEngine.track` call over the window's whole control sequence, when the
+        state is next read (:meth:`angles`, :meth:`observe`); the result is the same as stepping at once."""
         n, h = self._substeps(step_s)
-        engine = state.engine
-        if abs(engine.step_s - h) > 1e-12:  # a step that does not split into the standard substep
+        if abs(state.engine.step_s - h) > 1e-12:  # a step that does not split into the standard substep
+            q, qd = self._run(state).state()
             engine, key = self._engine(len(state.times), h)
-            q, qd = state.engine.state()
             engine.set_state(q, qd)
             self._tokens += 1
             self._owner[key] = self._tokens
             state.engine, state.token = engine, self._tokens
-        key = (len(state.times), round(engine.step_s, 12))
-        if self._owner.get(key) != state.token:
-            raise KDInputError("skeletal KD: this state's engine was reused by a newer initial_state; finish one "
-                               "batch before starting another of the same size")
+        self._check_owner(state)
         t0 = np.asarray(times, dtype=np.float64)
-        for k in range(n):
-            target, target_d = self._targets(trajectory, t0, step_s, k, n, h)
-            q, qd = engine.state()
-            self._apply(engine, q, qd, target, target_d)
+        state.pending.append(self._targets(trajectory, t0, step_s, n, h))
         state.times = t0 + step_s
         state.trajectory = trajectory
 
-    def _apply(self, engine, q, qd, target, target_d) -> None:
-        """One engine step under the controller (damping implicit where the engine integrates it so)."""
-        if getattr(engine, "implicit_damping", False):
-            tau, kd = self.controller.torques(q, qd, target, target_d, self.settle_time_s, split_damping=True)
-            engine.step(tau, kd)
-        else:
-            engine.step(self.controller.torques(q, qd, target, target_d, self.settle_time_s))
+    def _check_owner(self, state: _State) -> None:
+        if self._owner.get((len(state.times), round(state.engine.step_s, 12))) != state.token:
+            raise KDInputError("skeletal KD: this state's engine was reused by a newer initial_state; finish one "
+                               "batch before starting another of the same size")
+
+    def _run(self, state: _State):
+        """Run the queued steps of ``state`` on its engine; returns the engine."""
+        if state.pending:
+            self._check_owner(state)
+            blocks, state.pending = state.pending, []
+            target = np.concatenate([b[0] for b in blocks]) if len(blocks) > 1 else blocks[0][0]
+            target_d = np.concatenate([b[1] for b in blocks]) if len(blocks) > 1 else blocks[0][1]
+            state.engine.track(target, target_d, self.settle_time_s)
+        return state.engine
 
     def angles(self, state: _State) -> np.ndarray:
         """The KD joint angles of every member (B, J, 3) [rad]."""
-        return state.engine.state()[0]
+        self._check_owner(state)
+        return self._run(state).state()[0]
 
     def observe(self, state: _State) -> np.ndarray:
         """Frame markers and named points of every member (B, 3J + P, 3) [m] (see the module docstring)."""
@@ -161,10 +182,10 @@ class SkeletalSystem:
         translation at ``times`` when given."""
         from ..motion.joints import root_translation
 
-        G, _, pivots = chain_axes(self.model.skeleton, angles)
-        R = G[..., :3, :3]
+        R, pivots = self.model.frames(angles)
         marks = np.stack([pivots, pivots + MARKER_M * R[..., :, 0], pivots + MARKER_M * R[..., :, 1]], axis=2)
-        out = np.concatenate([marks.reshape(len(G), -1, 3), self.model.points_world(angles, self.point_names)], 1)
+        out = np.concatenate([marks.reshape(len(R), -1, 3),
+                              self.model.points_world(angles, self.point_names, frames=(R, pivots))], 1)
         if trajectory is not None and times is not None:
             out = out + root_translation(trajectory, times, 0)[0][:, None]
         return out
@@ -226,13 +247,11 @@ class SkeletalSystem:
         engine.set_state(q0, acc[None] * h)
         self._tokens += 1
         self._owner[key] = self._tokens
-        last, steps = 0.0, int(np.ceil(horizon / hs))
-        zero = np.zeros_like(q0)
-        for k in range(steps):
-            q, qd = engine.state()
-            self._apply(engine, q, qd, q0, zero)
-            if np.linalg.norm(self.points(engine.state()[0])[0] - x0, axis=1).max() > eps:
-                last = (k + 1) * hs
+        steps = int(np.ceil(horizon / hs))
+        record = np.empty((steps, *q0.shape))
+        engine.track(np.broadcast_to(q0, record.shape), np.zeros(record.shape), self.settle_time_s, record=record)
+        moved = np.linalg.norm(self.points(record[:, 0]) - x0, axis=2).max(axis=1) > eps
+        last = (int(np.flatnonzero(moved)[-1]) + 1) * hs if moved.any() else 0.0
         return WindowEstimate(window_s=max(last, h), epsilon_m=eps, acceleration_max=float(acc.max()),
                               initial_speed=float(acc.max() * h), regime="simulated (§5.1)")
 
@@ -255,29 +274,22 @@ def simulate_keyframes(model: ArticulatedModel, start_angles, keyframes: list[Ke
     ``controller`` defaults to composite inertia with parent and gravity compensation."""
     ctrl = controller or OnTheBeat(model)
     q0 = np.asarray(start_angles, dtype=np.float64)[None]
-    eng = make_engine(engine, model, 1, step_s)
+    eng = make_engine(engine, model, 1, step_s, controller=ctrl)
     eng.set_state(q0, np.zeros_like(q0))
-    ts, qs, qds = [0.0], [q0[0]], [np.zeros_like(q0[0])]
-    t, prev = 0.0, 0.0
+    qs, qds, prev = [q0], [np.zeros_like(q0)], 0.0
     for kf in keyframes:
         dur = kf.time_s - prev
         if dur <= 0:
             raise KDInputError("keyframes: times must increase")
         steps = int(round(dur / step_s))
-        for _ in range(steps):
-            q, qd = eng.state()
-            if getattr(eng, "implicit_damping", False):
-                tau, kd = ctrl.torques(q, qd, kf.angles[None], kf.rates[None], dur, split_damping=True)
-                eng.step(tau, kd)
-            else:
-                eng.step(ctrl.torques(q, qd, kf.angles[None], kf.rates[None], dur))
-            t += step_s
-            q, qd = eng.state()
-            ts.append(t)
-            qs.append(q[0])
-            qds.append(qd[0])
+        rq, rqd = np.empty((steps, *q0.shape)), np.empty((steps, *q0.shape))
+        eng.track(np.broadcast_to(kf.angles, rq.shape), np.broadcast_to(kf.rates, rq.shape), dur, record=rq,
+                  record_rates=rqd)
+        qs.append(rq[:, 0])
+        qds.append(rqd[:, 0])
         prev = kf.time_s
-    return np.array(ts), np.array(qs), np.array(qds)
+    q, qd = np.concatenate(qs), np.concatenate(qds)
+    return step_s * np.arange(len(q)), q, qd
 
 
 class KDJointTrajectory:

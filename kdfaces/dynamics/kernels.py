@@ -1,4 +1,6 @@
-"""Warp kernels of one face dynamics step, launched over (batch member, cluster) and (batch member, vertex).
+"""Warp kernels of one face dynamics step: fused per part of the mesh (:func:`face_step`, the CPU path), or
+launched over (batch member, cluster) and (batch member, vertex) (:func:`cluster_frames`, :func:`track_step`, the
+parallel path for a GPU).
 
 The kinematic trajectory is baked on the step grid: ``xk[r, i]``, ``vk[r, i]`` are x_K and ẋ_K of vertex i at grid
 row r; batch member b at step k reads rows ``rows[b] + off0`` (start of the step, t) and ``rows[b] + off1``
@@ -9,7 +11,11 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["cluster_moments", "polar_svd", "polar_iterative", "cluster_frames", "track_step"]
+# the protocol never differentiates through a step: no adjoint code (half the compile time)
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["cluster_moments", "polar_svd", "polar_iterative", "pd_update", "cluster_frames", "track_step",
+           "face_step"]
 
 
 @wp.func
@@ -73,28 +79,54 @@ def polar_svd(A: wp.mat33, eta: float):
 
 
 @wp.func
-def polar_iterative(A: wp.mat33, q0: wp.quat, iterations: int):
-    """Rotation of A_pq by Müller et al. 2016 ("A robust method to extract the rotational part of deformations"):
-    fixed-point iterations ω = Σ_k r_k × a_k / (|Σ_k r_k · a_k| + 1e-9), q ← exp(ω) q, from the warm start ``q0``
-    (the cluster's previous rotation; identity at a window start, exact there since the rest shape is the current
-    kinematic shape). Converges to the polar rotation of A_pq, always proper (no reflection case), and keeps the
-    warm start in directions A_pq leaves undetermined.
+def polar_iterative(A: wp.mat33, q0: wp.quat, eta: float, iterations: int):
+    """Rotation of A_pq + η·I by Newton's method on SO(3), warm-started from ``q0`` (the cluster's rotation of
+    the previous step; identity at a window start, exact there since the rest shape is the current kinematic shape).
+
+    R maximises tr(Rᵀ A). With R' = exp([ω]×) R and B = A Rᵀ, the quadratic model is
+    tr(B) + ωᵀ axial(B − Bᵀ) − ½ ωᵀ (tr(B)·I − sym B) ω, so the Newton step is
+    ω = (tr(B)·I − sym B)⁻¹ axial(B − Bᵀ) and q ← exp(ω) q. Müller et al. 2016 ("A robust method to extract the
+    rotational part of deformations") take the same step with tr(B)·I in place of the Hessian: exact for a round
+    cluster, but on the flat clusters of a surface mesh (sym B ≈ diag(s, s, 0)) it halves every in-plane step and
+    converges only linearly; Newton converges quadratically, so one or two iterations per step reach svd3's
+    rotation. Far from the optimum (Hessian not positive definite) the step falls back to Müller's, and a step is
+    at most 1 rad. The same η·I as :func:`polar_svd` is added, so both fits share one fixed point, also for thin
+    clusters whose rotation about their line A_pq leaves undetermined.
     """
+    Ae = A + eta * wp.identity(n=3, dtype=float)
     qc = q0
     for _ in range(iterations):
         R = wp.quat_to_matrix(qc)
-        num = wp.vec3(0.0)
-        den = wp.float32(0.0)
-        for k in range(3):
-            rk = wp.vec3(R[0, k], R[1, k], R[2, k])
-            ak = wp.vec3(A[0, k], A[1, k], A[2, k])
-            num += wp.cross(rk, ak)
-            den += wp.dot(rk, ak)
-        omega = num / (wp.abs(den) + 1.0e-9)
+        B = Ae * wp.transpose(R)
+        tr = B[0, 0] + B[1, 1] + B[2, 2]
+        g = wp.vec3(B[2, 1] - B[1, 2], B[0, 2] - B[2, 0], B[1, 0] - B[0, 1])
+        H = (tr + 1.0e-6 * wp.abs(tr) + 1.0e-20) * wp.identity(n=3, dtype=float) - 0.5 * (B + wp.transpose(B))
+        m2 = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+        omega = g / (wp.abs(tr) + 1.0e-9)  # Müller's step, where the Hessian is not positive definite
+        if H[0, 0] > 0.0 and m2 > 0.0 and wp.determinant(H) > 0.0:
+            omega = wp.inverse(H) * g
         w = wp.length(omega)
-        if w > 1.0e-9:
-            qc = wp.normalize(wp.quat_from_axis_angle(omega / w, w) * qc)
+        if w > 1.0e-12:
+            qc = wp.normalize(wp.quat_from_axis_angle(omega / w, wp.min(w, 1.0)) * qc)
     return qc
+
+
+@wp.func
+def pd_update(xi: wp.vec3, vi: wp.vec3, xk1: wp.vec3, vk1: wp.vec3, kpi: float, kdi: float, h: float, relative: int):
+    """The implicit PD step of one vertex (paper §4.5, gains per unit mass kp, kd), backward Euler with targets at
+    t + h, from the velocity v* after shape matching:
+
+        v' = v* + h kp (x_K' − x − h v') + h kd (ẋ_K' − v')          (relative damping)
+        v' = v* + h kp (x_K' − x − h v') − h kd v'                   (absolute damping, the paper's −K_d ẋ)
+    ⇒ v' = (v* + h kp (x_K' − x) [+ h kd ẋ_K']) / (1 + h kd + h² kp),   x' = x + h v'.
+
+    The division by 1 + h kd + h² kp ≥ 1 makes the step unconditionally stable for any gains. Returns (x', v').
+    """
+    num = vi + (h * kpi) * (xk1 - xi)
+    if relative != 0:
+        num = num + (h * kdi) * vk1
+    vn = num * (1.0 / (1.0 + h * kdi + h * h * kpi))
+    return xi + h * vn, vn
 
 
 @wp.kernel
@@ -115,11 +147,12 @@ def cluster_frames(
     c0_out: wp.array2d(dtype=wp.vec3),
 ):
     """Best-fit rotation and centroids of each cluster (Müller et al. 2005, §4.4), rest shape = the current
-    kinematic shape: :func:`polar_svd` (``iterative`` = 0) or :func:`polar_iterative` warm-started from ``q``."""
+    kinematic shape: :func:`polar_svd` (``iterative`` = 0) or :func:`polar_iterative` warm-started from ``q``.
+    Launched over (batch member, cluster): the parallel path (GPU)."""
     b, c = wp.tid()
     A, cx, c0 = cluster_moments(x, xk, b, rows[b] + off0, offsets[c], offsets[c + 1], members, mass)
     if iterative != 0:
-        qc = polar_iterative(A, q[b, c], iterations)
+        qc = polar_iterative(A, q[b, c], eta, iterations)
         q[b, c] = qc
         rot_out[b, c] = wp.quat_to_matrix(qc)
     else:
@@ -149,15 +182,11 @@ def track_step(
     x: wp.array2d(dtype=wp.vec3),
     v: wp.array2d(dtype=wp.vec3),
 ):
-    """Shape-matching velocity update, then the implicit PD step, in place on ``x``, ``v`` (one step of h [s]).
+    """Shape-matching velocity update, then the implicit PD step (:func:`pd_update`), in place on ``x``, ``v``
+    (one step of h [s]). Launched over (batch member, vertex): the parallel path (GPU).
 
     Goals: g_i = mean over clusters c ∋ i of R_c (x0_i − c0_c) + c_c; v* = v + α (g_i − x_i)/h (Müller eq. 10).
-    PD (paper §4.5, gains per unit mass kp, kd), backward Euler with targets at t + h:
-        v' = v* + h kp (x_K' − x − h v') + h kd (ẋ_K' − v')          (relative damping)
-        v' = v* + h kp (x_K' − x − h v') − h kd v'                   (absolute damping, the paper's −K_d ẋ)
-    ⇒ v' = (v* + h kp (x_K' − x) [+ h kd ẋ_K']) / (1 + h kd + h² kp),   x' = x + h v'.
-    The division by 1 + h kd + h² kp ≥ 1 makes the step unconditionally stable for any gains. Vertices with
-    ``rigid`` set take x_K, ẋ_K at t + h instead.
+    Vertices with ``rigid`` set take x_K, ẋ_K at t + h instead.
     """
     b, i = wp.tid()
     r0 = rows[b] + off0
@@ -178,11 +207,89 @@ def track_step(
             g += rot[b, c] * (x0 - cen0[b, c]) + cen[b, c]
         g = g / float(end - start)
         vi = vi + (alpha / h) * (g - xi)
-    kpi = kp[i]
-    kdi = kd[i]
-    num = vi + (h * kpi) * (xk[r1, i] - xi)
-    if relative != 0:
-        num = num + (h * kdi) * vk[r1, i]
-    vn = num * (1.0 / (1.0 + h * kdi + h * h * kpi))
+    xn, vn = pd_update(xi, vi, xk[r1, i], vk[r1, i], kp[i], kd[i], h, relative)
     v[b, i] = vn
-    x[b, i] = xi + h * vn
+    x[b, i] = xn
+
+
+@wp.kernel
+def face_step(
+    x_in: wp.array2d(dtype=wp.vec3),
+    x_out: wp.array2d(dtype=wp.vec3),
+    v: wp.array2d(dtype=wp.vec3),
+    xk: wp.array2d(dtype=wp.vec3),
+    vk: wp.array2d(dtype=wp.vec3),
+    rows: wp.array(dtype=wp.int32),
+    off0: int,
+    off1: int,
+    part: int,
+    part_cluster_offsets: wp.array(dtype=wp.int32),
+    part_clusters: wp.array(dtype=wp.int32),
+    offsets: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=float),
+    iterative: int,
+    eta: float,
+    iterations: int,
+    part_vertex_offsets: wp.array(dtype=wp.int32),
+    part_vertices: wp.array(dtype=wp.int32),
+    slot_offsets: wp.array(dtype=wp.int32),
+    slot_clusters: wp.array(dtype=wp.int32),
+    kp: wp.array(dtype=float),
+    kd: wp.array(dtype=float),
+    rigid: wp.array(dtype=wp.int32),
+    alpha: float,
+    h: float,
+    relative: int,
+    q: wp.array2d(dtype=wp.quat),
+    rot: wp.array2d(dtype=wp.mat33),
+    cen: wp.array2d(dtype=wp.vec3),
+    cen0: wp.array2d(dtype=wp.vec3),
+):
+    """One whole step of one part of the mesh for each batch member (the launch dimension), fused: the part's
+    cluster frames (as :func:`cluster_frames`, into slots ``part_clusters``), then its vertices' goals and PD
+    step (as :func:`track_step`), reading positions at t from ``x_in`` and writing t + h to ``x_out``.
+
+    The CPU path: a CPU launch runs its threads one after another, and each thread reloads every argument, so
+    a few threads that loop over thousands of clusters and vertices cost half as much as a thread per vertex.
+    Parts let two CPU threads share one state: each fits every cluster its vertices belong to (those on the
+    seam are fitted by both, identically), and x is double-buffered so that neither reads a position the other
+    has already advanced. Slot s of part p's vertices is vertex ``part_vertices[s]``; its clusters are the
+    slots ``slot_clusters[slot_offsets[s]:slot_offsets[s + 1]]`` of the per-member ``q``, ``rot``, ``cen``,
+    ``cen0``. Vertices with ``rigid`` set take x_K, ẋ_K at t + h.
+    """
+    b = wp.tid()
+    r0 = rows[b] + off0
+    r1 = rows[b] + off1
+    for s in range(part_cluster_offsets[part], part_cluster_offsets[part + 1]):
+        c = part_clusters[s]
+        A, cx, c0 = cluster_moments(x_in, xk, b, r0, offsets[c], offsets[c + 1], members, mass)
+        if iterative != 0:
+            qc = polar_iterative(A, q[b, s], eta, iterations)
+            q[b, s] = qc
+            rot[b, s] = wp.quat_to_matrix(qc)
+        else:
+            rot[b, s] = polar_svd(A, eta)
+        cen[b, s] = cx
+        cen0[b, s] = c0
+    ah = alpha / h
+    for s in range(part_vertex_offsets[part], part_vertex_offsets[part + 1]):
+        i = part_vertices[s]
+        if rigid[i] != 0:  # a rigid part (teeth, eyes) follows the kinematic trajectory exactly
+            x_out[b, i] = xk[r1, i]
+            v[b, i] = vk[r1, i]
+            continue
+        xi = x_in[b, i]
+        vi = v[b, i]
+        start = slot_offsets[s]
+        end = slot_offsets[s + 1]
+        if end > start:
+            x0 = xk[r0, i]
+            g = wp.vec3(0.0)
+            for j in range(start, end):
+                c = slot_clusters[j]
+                g += rot[b, c] * (x0 - cen0[b, c]) + cen[b, c]
+            vi = vi + ah * (g / float(end - start) - xi)
+        xn, vn = pd_update(xi, vi, xk[r1, i], vk[r1, i], kp[i], kd[i], h, relative)
+        v[b, i] = vn
+        x_out[b, i] = xn

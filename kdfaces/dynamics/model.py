@@ -76,9 +76,10 @@ class FaceModel:
         shape_matching_alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
         damping_mode: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
         diameter: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound).
-        rotation: how cluster rotations are fitted: "svd3" (polar part of A_pq from Warp's svd3, float64) or
-            "iterative" (Müller et al. 2016, warm-started from the previous step; several times faster).
-        rotation_iterations: fixed-point iterations per step for "iterative".
+        rotation: how cluster rotations are fitted: "iterative" (Newton's method on SO(3) for the polar rotation,
+            warm-started from the previous step; the default, several times faster) or "svd3" (polar part of A_pq
+            from Warp's svd3, float64). Both fit A_pq + η·I, so they agree to float32 round-off once converged.
+        rotation_iterations: Newton iterations per step for "iterative".
         rigid: vertices that follow x_K exactly (rigid parts: teeth, eyes), shape (N,), bool, or None (none).
     """
 
@@ -91,8 +92,8 @@ class FaceModel:
     shape_matching_alpha: float
     damping_mode: str
     diameter: float
-    rotation: str = "svd3"
-    rotation_iterations: int = 2
+    rotation: str = defaults.ROTATION
+    rotation_iterations: int = defaults.ROTATION_ITERATIONS
     rigid: np.ndarray | None = None
 
     def __post_init__(self):
@@ -148,8 +149,8 @@ class FaceModel:
                damping_ratio: float = defaults.DAMPING_RATIO,
                shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA, rings: int = defaults.CLUSTER_RINGS,
                cluster_centers="cover", areal_density_kg_m2: float = defaults.AREAL_DENSITY_KG_M2, mass=None,
-               damping_mode: str = defaults.DAMPING_MODE, rotation: str = "svd3",
-               rotation_iterations: int = 2, rigid=None) -> FaceModel:
+               damping_mode: str = defaults.DAMPING_MODE, rotation: str = defaults.ROTATION,
+               rotation_iterations: int = defaults.ROTATION_ITERATIONS, rigid=None) -> FaceModel:
         """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3) int.
 
         Args:
@@ -162,7 +163,8 @@ class FaceModel:
             areal_density_kg_m2: mass per area [kg/m²] lumped to vertices (isolated vertices get the mean).
             mass: [kg], scalar (uniform) or (N,); overrides the areal density.
             damping_mode: "relative" (damps ẋ − ẋ_K) or "absolute" (the paper's −K_d·ẋ).
-            rotation, rotation_iterations: cluster rotation fit, "svd3" or "iterative" (with its iterations).
+            rotation, rotation_iterations: cluster rotation fit, "iterative" (with its Newton iterations per step)
+                or "svd3".
             rigid: vertices that follow x_K exactly: a (N,) bool mask or vertex indices (teeth, eyes).
         """
         settle_time, alpha, damping = settle_time_s, shape_matching_alpha, damping_mode

@@ -1,25 +1,38 @@
 """FaceSystem: the face dynamics behind the KD protocol of :mod:`kdfaces.kd` (initial_state / step / observe).
 
 The kinematic trajectory is baked once per simulate call on the step grid (``prepare``), into Warp arrays of
-x_K, ẋ_K; each step then costs two kernel launches for the whole batch (cluster rotations, then goals + implicit
-PD). A batch may be split into chunks advanced by parallel threads: ``wp.launch`` on the CPU releases the GIL, a
-recorded launch (``record_cmd=True``, less Python per step) does not, so recorded launches serve unthreaded steps.
+x_K, ẋ_K. Each step is then, on the CPU, one launch of the fused :func:`~kdfaces.dynamics.kernels.face_step` per
+thread (cluster rotations, then goals and the implicit PD step, looping inside the kernel), recorded once per state
+so that a step costs a few microseconds of Python; on a GPU, two launches over (member, cluster) and
+(member, vertex).
+
+Threads: ``threads`` − 1 persistent workers, started once, share each step with the calling thread; a pair of
+barriers per step hands them their part (no pool submit per step, and CPU launches release the GIL). A batch of
+several members is split by members; a single state (the scrub path) is split by vertices into parts along a
+bandwidth-reducing (reverse Cuthill–McKee) order of the cluster graph, so the parts meet along a short seam whose
+clusters both fit.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+import threading
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 import warp as wp
 
 from ..errors import KDInputError, SimulationBlowUpError
 from ..motion.trajectory import scan_trajectory
-from .kernels import cluster_frames, track_step
+from .kernels import cluster_frames, face_step, track_step
 from .model import FaceModel
 
-__all__ = ["FaceSystem", "FaceState", "TrajectoryBake"]
+__all__ = ["FaceSystem", "FaceState", "TrajectoryBake", "KERNEL_PATHS"]
+
+#: How a step is launched: "fused" (one :func:`~kdfaces.dynamics.kernels.face_step` per thread and step, the CPU
+#: path) or "parallel" (a launch over (member, cluster), then one over (member, vertex), the GPU path).
+KERNEL_PATHS = ("fused", "parallel")
 
 _GRID_TOL = 1e-9
 _OFF0, _OFF1 = object(), object()  # placeholders for the step's row offsets in launch specs
@@ -134,8 +147,27 @@ class TrajectoryBake:
         need = int(rows.max()) + steps * self.stride + 1
         if need <= self.num_rows:
             return
-        # the bake is the cache of these rows: the trajectory's own sample cache is left for others
-        self._append(*scan_trajectory(self.trajectory, self.times(np.arange(self.num_rows, need)), 1))
+        self._append(*self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1))
+
+
+@dataclass
+class _Partition:
+    """The mesh split into parts for threads sharing one state (see :func:`~kdfaces.dynamics.kernels.face_step`).
+
+    Part p fits the clusters ``clusters[cluster_offsets[p]:cluster_offsets[p + 1]]`` (global ids; their position
+    in this list is their slot) and advances the vertices ``vertices[vertex_offsets[p]:vertex_offsets[p + 1]]``;
+    the vertex in slot s reads the cluster slots ``slot_clusters[slot_offsets[s]:slot_offsets[s + 1]]``.
+    """
+
+    parts: int
+    cluster_offsets: wp.array
+    clusters: wp.array
+    vertex_offsets: wp.array
+    vertices: wp.array
+    slot_offsets: wp.array
+    slot_clusters: wp.array
+    slots: int  # total cluster slots (seam clusters counted once per part)
+    no_cluster_offsets: wp.array  # zeros: no part fits a cluster (shape matching off)
 
 
 @dataclass
@@ -143,12 +175,14 @@ class _Chunk:
     members: slice
     rows: wp.array | None
     x: wp.array
+    x_next: wp.array | None  # the fused path's second position buffer (x at t + h is written here, then swapped)
     v: wp.array
     rot: wp.array
     quat: wp.array
     cen: wp.array
     cen0: wp.array
-    launches: tuple | None = None  # (the bake/row arrays they read, recorded wp.Launch commands)
+    partition: _Partition | None = None
+    launches: dict = field(default_factory=dict)  # (part, parity) → (bake/row arrays read, recorded wp.Launch)
 
 
 @dataclass
@@ -161,8 +195,9 @@ class FaceState:
         bake: the baked trajectory the members read (None until the first step when not prepared).
         rows: each member's bake row at its window start, shape (B,), int32.
         chunks: slices of the batch, each with positions x [m] and velocities v [m/s], shape (b, N) vec3 float32,
-            per-cluster rotations (b, C) mat33 and their quaternions (b, C) quat (the warm start of the iterative
-            rotation fit; identity at the window start), and centroids (b, C) vec3 [m].
+            per-cluster rotations (b, S) mat33 and their quaternions (b, S) quat (the warm start of the iterative
+            rotation fit; identity at the window start), and centroids (b, S) vec3 [m] (S cluster slots).
+        tasks: (chunk index, part) pairs, one per thread, that make up one step.
     """
 
     start_times: np.ndarray
@@ -170,6 +205,66 @@ class FaceState:
     rows: np.ndarray | None
     chunks: list = field(default_factory=list)
     steps: int = 0
+    tasks: list = field(default_factory=list)
+
+
+def _noop() -> None:
+    return None
+
+
+class _Workers:
+    """``count`` persistent threads that each run one task per round, while the calling thread runs the first.
+
+    A round is two barrier waits (start, end): tens of microseconds, against a pool submit and a future per
+    thread per step. A task's exception is re-raised in the caller after the round.
+    """
+
+    def __init__(self, count: int):
+        self._start = threading.Barrier(count + 1)
+        self._end = threading.Barrier(count + 1)
+        self._tasks = [_noop] * count
+        self._errors: list[BaseException | None] = [None] * count
+        self._stop = False
+        self._lock = threading.Lock()  # one round at a time (two callers on one system take turns)
+        for k in range(count):
+            threading.Thread(target=self._loop, args=(k,), daemon=True, name=f"kdfaces-face-worker-{k}").start()
+
+    def _loop(self, k: int) -> None:
+        while True:
+            self._start.wait()
+            if self._stop:
+                return
+            try:
+                self._tasks[k]()
+            except BaseException as e:  # noqa: BLE001 - handed to the caller
+                self._errors[k] = e
+            self._end.wait()
+
+    def run(self, tasks) -> None:
+        """Run ``tasks[0]`` here and ``tasks[1:]`` on the workers; return when all are done."""
+        with self._lock:
+            for k in range(len(self._tasks)):
+                self._tasks[k] = tasks[k + 1] if k + 1 < len(tasks) else _noop
+            self._start.wait()
+            try:
+                tasks[0]()
+            finally:
+                self._end.wait()
+                self._tasks = [_noop] * len(self._tasks)
+            errors, self._errors = self._errors, [None] * len(self._errors)
+        for e in errors:
+            if e is not None:
+                raise e
+
+    def close(self) -> None:
+        """Stop the threads (idempotent)."""
+        with self._lock:
+            if not self._stop:
+                self._stop = True
+                try:
+                    self._start.wait(timeout=5.0)
+                except threading.BrokenBarrierError:
+                    pass
 
 
 class FaceSystem:
@@ -178,21 +273,29 @@ class FaceSystem:
     Args:
         model: the static :class:`FaceModel`.
         device: Warp device ("cpu" or "cuda:0").
-        threads: split batches into this many chunks stepped by parallel threads.
+        threads: CPU threads per step (the calling thread and ``threads`` − 1 persistent workers); a single state
+            is split by vertices, a batch by members.
         check_every: steps between blow-up checks (NaN/inf, or a vertex farther than ``blowup_factor`` face
             diameters, or extents of the baked trajectory, beyond its reach); the final state is always checked.
         max_bake_bytes: the shared trajectory bake kept across calls stays within this many bytes; a call whose
             windows would grow it further starts a new bake at its own windows (bounded memory on long takes).
+        kernels: "fused" or "parallel" (:data:`KERNEL_PATHS`); default fused on the CPU, parallel on a GPU. Both
+            compute the same step (the tests hold them to float32 round-off of each other).
     """
 
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
-                 blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20):
+                 blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
         self.model = model
         self.device = wp.get_device(device)
         self.threads = max(1, int(threads))
         self.check_every = max(1, int(check_every))
         self.blowup_factor = float(blowup_factor)
         self.max_bake_bytes = int(max_bake_bytes)
+        if kernels is None:
+            kernels = "fused" if self.device.is_cpu else "parallel"
+        if kernels not in KERNEL_PATHS:
+            raise KDInputError(f"kernels: expected one of {KERNEL_PATHS}, got {kernels!r}")
+        self.kernels = kernels
         c = model.clusters
         d = self.device
         self._offsets = wp.array(c.offsets, dtype=wp.int32, device=d)
@@ -204,9 +307,19 @@ class FaceSystem:
         self._kd = wp.array(model.kd.astype(np.float32), dtype=float, device=d)
         self._rigid = wp.array(model.rigid_mask.astype(np.int32), dtype=wp.int32, device=d)
         self._voff_none = wp.zeros(model.num_vertices + 1, dtype=wp.int32, device=d)  # no goals when α = 0
+        self._partitions: dict[int, _Partition] = {}
         self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
         self._pending = None  # (trajectory, start times, (bake, rows)) from the last prepare
-        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self._workers = None
+        if self.threads > 1 and self.device.is_cpu:
+            self._workers = _Workers(self.threads - 1)
+            weakref.finalize(self, self._workers.close)
+
+    def close(self) -> None:
+        """Stop the worker threads (they also stop when the system is garbage-collected)."""
+        if self._workers is not None:
+            self._workers.close()
+            self._workers = None
 
     # --- KD protocol -------------------------------------------------------------------------------------------
     def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
@@ -253,11 +366,14 @@ class FaceSystem:
 
     def copy_state(self, state: FaceState) -> FaceState:
         """An independent copy of ``state`` (same bake, its own arrays)."""
-        chunks = [_Chunk(members=ch.members, rows=ch.rows, x=wp.clone(ch.x), v=wp.clone(ch.v), rot=wp.clone(ch.rot),
-                         quat=wp.clone(ch.quat), cen=wp.clone(ch.cen), cen0=wp.clone(ch.cen0))
+        chunks = [_Chunk(members=ch.members, rows=ch.rows, x=wp.clone(ch.x),
+                         x_next=None if ch.x_next is None else wp.empty_like(ch.x_next), v=wp.clone(ch.v),
+                         rot=wp.clone(ch.rot), quat=wp.clone(ch.quat), cen=wp.clone(ch.cen), cen0=wp.clone(ch.cen0),
+                         partition=ch.partition)
                   for ch in state.chunks]
         return FaceState(start_times=state.start_times.copy(), bake=state.bake,
-                         rows=None if state.rows is None else state.rows.copy(), chunks=chunks, steps=state.steps)
+                         rows=None if state.rows is None else state.rows.copy(), chunks=chunks, steps=state.steps,
+                         tasks=list(state.tasks))
 
     def initial_state(self, trajectory, times) -> FaceState:
         """States at ``times`` (B,) [s] on the kinematic trajectory: x = x_K(t), v = ẋ_K(t)."""
@@ -272,21 +388,29 @@ class FaceSystem:
             bake = rows = None
             x0, v0 = (a.astype(np.float32) for a in trajectory.evaluate(t0, order=1))
         B = len(t0)
-        parts = np.array_split(np.arange(B), min(self.threads, B))
-        C = self.model.clusters.num_clusters
+        fused = self.kernels == "fused"
+        threads = self.threads if self._workers is not None else 1
+        # one state and several threads: split its vertices; a batch: split its members
+        parts = threads if (fused and B == 1 and threads > 1) else 1
+        partition = self._partition(parts) if fused else None
+        slots = partition.slots if fused else self.model.clusters.num_clusters
         d = self.device
         state = FaceState(start_times=t0, bake=bake, rows=rows)
-        for p in parts:
+        for p in np.array_split(np.arange(B), min(threads if parts == 1 else 1, B)):
+            x = wp.array(x0[p], dtype=wp.vec3, device=d)
             state.chunks.append(_Chunk(
                 members=slice(int(p[0]), int(p[-1]) + 1),
                 rows=None if rows is None else wp.array(rows[p], dtype=wp.int32, device=d),
-                x=wp.array(x0[p], dtype=wp.vec3, device=d),
+                x=x, x_next=wp.empty_like(x) if fused else None,
                 v=wp.array(v0[p], dtype=wp.vec3, device=d),
-                rot=wp.zeros((len(p), C), dtype=wp.mat33, device=d),
-                quat=wp.array(np.tile(np.array([0, 0, 0, 1], np.float32), (len(p), C, 1)), dtype=wp.quat, device=d),
-                cen=wp.zeros((len(p), C), dtype=wp.vec3, device=d),
-                cen0=wp.zeros((len(p), C), dtype=wp.vec3, device=d),
+                rot=wp.zeros((len(p), slots), dtype=wp.mat33, device=d),
+                quat=wp.array(np.tile(np.array([0, 0, 0, 1], np.float32), (len(p), slots, 1)), dtype=wp.quat,
+                              device=d),
+                cen=wp.zeros((len(p), slots), dtype=wp.vec3, device=d),
+                cen0=wp.zeros((len(p), slots), dtype=wp.vec3, device=d),
+                partition=partition,
             ))
+        state.tasks = [(k, part) for k in range(len(state.chunks)) for part in range(parts)]
         return state
 
     def step(self, state: FaceState, trajectory, times, step_s: float) -> None:
@@ -306,14 +430,26 @@ class FaceSystem:
             raise KDInputError(f"times: step expected to start at {expect:.9g} s, got {t[0]:.9g} s")
         bake.ensure(state.rows, state.steps + 1)
         off0, off1 = state.steps * bake.stride, (state.steps + 1) * bake.stride
-        if self._pool is None or len(state.chunks) == 1:
-            for ch in state.chunks:
-                self._step_chunk(ch, bake, off0, off1, threaded=False)
+        if self.kernels == "fused":
+            parity = state.steps % 2
+            tasks = [self._fused_launch(state.chunks[k], part, parity, bake, off0, off1) for k, part in state.tasks]
         else:
-            list(self._pool.map(lambda ch: self._step_chunk(ch, bake, off0, off1, threaded=True), state.chunks))
+            tasks = [self._parallel_launches(state.chunks[k], bake, off0, off1) for k, _ in state.tasks]
+        self._run(state, tasks)
         state.steps += 1
         if state.steps % self.check_every == 0:
             self._check(state)
+
+    def _run(self, state: FaceState, tasks) -> None:
+        """Run one step's tasks (on the workers when there are several), then swap the fused path's buffers."""
+        if len(tasks) == 1 or self._workers is None:  # (a state made before close() steps on one thread)
+            for task in tasks:
+                task()
+        else:
+            self._workers.run(tasks)
+        if self.kernels == "fused":
+            for ch in state.chunks:
+                ch.x, ch.x_next = ch.x_next, ch.x
 
     def _one_off_step(self, state: FaceState, trajectory, t: np.ndarray, h: float) -> None:
         """A step of another length than the state's grid (a final partial step of :func:`~kdfaces.kd.simulate_full`
@@ -323,12 +459,24 @@ class FaceSystem:
             raise KDInputError(f"step_s: expected a positive number of seconds, got {h}")
         bake = TrajectoryBake(trajectory, h, self.device, member_times=np.broadcast_to(t, (len(state.start_times),)))
         bake.ensure(np.arange(bake.stride, dtype=np.int32), 1)
-        for ch in state.chunks:
+        tasks = []
+        for k, part in state.tasks:
+            ch = state.chunks[k]
             rows = wp.array(np.arange(ch.members.start, ch.members.stop, dtype=np.int32), dtype=wp.int32,
                             device=self.device)
-            for kernel, dim, inputs, outputs in self._launch_specs(ch, bake, rows=rows):
-                inputs = [0 if a is _OFF0 else bake.stride if a is _OFF1 else a for a in inputs]
-                wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            if self.kernels == "fused":
+                inputs = self._fused_inputs(ch, part, bake, rows)
+                inputs[7] = bake.stride  # off1: the members' rows at t + h
+
+                def task(inputs=inputs, b=ch.x.shape[0]):
+                    wp.launch(face_step, dim=b, inputs=inputs, device=self.device)
+            else:
+                def task(ch=ch, rows=rows):
+                    for kernel, dim, inputs, outputs in self._launch_specs(ch, bake, rows=rows):
+                        inputs = [0 if a is _OFF0 else bake.stride if a is _OFF1 else a for a in inputs]
+                        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
+            tasks.append(task)
+        self._run(state, tasks)
         state.bake, state.rows, state.start_times, state.steps = bake, None, t + h, 0  # off the grid from here
         self._check(state)
 
@@ -354,29 +502,81 @@ class FaceSystem:
         if n != self.model.num_vertices:
             raise KDInputError(f"trajectory: has {n} vertices, the face model has {self.model.num_vertices}")
 
-    def _step_chunk(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int, *, threaded: bool) -> None:
-        """The step's two launches. Alone, they are recorded once per chunk and bake arrays and each step only sets
-        the row offsets (less Python per step); threaded, they go through ``wp.launch``, which releases the GIL
-        (a recorded CPU launch does not, so threads would run one at a time)."""
-        specs = self._launch_specs(ch, bake)
-        if threaded:
-            for kernel, dim, inputs, outputs in specs:
+    def _partition(self, parts: int) -> _Partition:
+        """The mesh in ``parts`` parts of equal vertex count (cached): contiguous pieces of the reverse
+        Cuthill–McKee order of the graph "shares a cluster", so each part's seam (clusters fitted twice) is short."""
+        if parts in self._partitions:
+            return self._partitions[parts]
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+        c = self.model.clusters
+        n, nc = c.num_vertices, c.num_clusters
+        if parts == 1:
+            order = np.arange(n)
+        else:
+            m = sp.csr_matrix((np.ones(len(c.members), np.float32), c.members, c.offsets), shape=(nc, n))
+            graph = sp.csr_matrix(m.T @ m + sp.identity(n, dtype=np.float32, format="csr"))
+            order = np.asarray(reverse_cuthill_mckee(graph, symmetric_mode=True))
+        vo, vc = c.vertex_offsets, c.vertex_clusters
+        cl_off, cls, v_off, verts, s_off, s_cl = [0], [], [0], [], [np.zeros(1, np.int64)], []
+        for piece in np.array_split(order, parts):
+            piece = np.sort(piece)
+            counts = (vo[piece + 1] - vo[piece]).astype(np.int64)
+            mine = vc[np.repeat(vo[piece], counts) + _ranges(counts)]
+            own = np.unique(mine)
+            s_cl.append(cl_off[-1] + np.searchsorted(own, mine))
+            s_off.append(s_off[-1][-1] + np.cumsum(counts))
+            cls.append(own)
+            cl_off.append(cl_off[-1] + len(own))
+            verts.append(piece)
+            v_off.append(v_off[-1] + len(piece))
+        d = self.device
+
+        def arr(a):
+            return wp.array(np.concatenate([np.asarray(x, dtype=np.int64).ravel() for x in a]).astype(np.int32),
+                            dtype=wp.int32, device=d)
+
+        part = _Partition(parts=parts, cluster_offsets=arr([cl_off]), clusters=arr(cls), vertex_offsets=arr([v_off]),
+                          vertices=arr(verts), slot_offsets=arr(s_off), slot_clusters=arr(s_cl),
+                          slots=int(cl_off[-1]), no_cluster_offsets=wp.zeros(parts + 1, dtype=wp.int32, device=d))
+        self._partitions[parts] = part
+        return part
+
+    def _fused_launch(self, ch: _Chunk, part: int, parity: int, bake: TrajectoryBake, off0: int, off1: int):
+        """The step of ``part`` of chunk ``ch`` as a callable: its recorded face_step launch with the row offsets
+        set (recorded once per chunk, part and buffer parity, and again if the bake grew)."""
+        key = (bake.xk, bake.vk, ch.rows)  # the arrays themselves (ids could be reused after a bake grows)
+        rec = ch.launches.get((part, parity))
+        if rec is None or any(a is not b for a, b in zip(rec[0], key, strict=True)):
+            cmd = wp.launch(face_step, dim=ch.x.shape[0], inputs=self._fused_inputs(ch, part, bake, ch.rows),
+                            device=self.device, record_cmd=True)
+            rec = ch.launches[(part, parity)] = (key, cmd)
+        cmd = rec[1]
+        cmd.set_param_at_index_from_ctype(_FUSED_OFF0, off0)
+        cmd.set_param_at_index_from_ctype(_FUSED_OFF0 + 1, off1)
+        return cmd.launch
+
+    def _fused_inputs(self, ch: _Chunk, part: int, bake: TrajectoryBake, rows) -> list:
+        """face_step's arguments for ``part`` of chunk ``ch`` reading ``bake`` at ``rows`` (row offsets 0)."""
+        m, pa = self.model, ch.partition
+        alpha_on = m.shape_matching_alpha > 0 and m.clusters.num_clusters > 0
+        return [ch.x, ch.x_next, ch.v, bake.xk, bake.vk, rows, 0, 0, part,
+                pa.cluster_offsets if alpha_on else pa.no_cluster_offsets, pa.clusters, self._offsets,
+                self._members, self._mass, int(m.rotation == "iterative"), ROTATION_REGULARIZATION,
+                m.rotation_iterations, pa.vertex_offsets, pa.vertices,
+                pa.slot_offsets if alpha_on else self._voff_none, pa.slot_clusters, self._kp, self._kd, self._rigid,
+                float(m.shape_matching_alpha), float(bake.h), int(m.damping_mode == "relative"), ch.quat, ch.rot,
+                ch.cen, ch.cen0]
+
+    def _parallel_launches(self, ch: _Chunk, bake: TrajectoryBake, off0: int, off1: int):
+        """The step of chunk ``ch`` on the parallel path, as a callable of its launches."""
+
+        def run():
+            for kernel, dim, inputs, outputs in self._launch_specs(ch, bake):
                 inputs = [off0 if a is _OFF0 else off1 if a is _OFF1 else a for a in inputs]
                 wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device)
-            return
-        key = (bake.xk, bake.vk, ch.rows)  # the arrays themselves (ids could be reused after a bake grows)
-        if ch.launches is None or any(a is not b for a, b in zip(ch.launches[0], key, strict=True)):
-            cmds = []
-            for kernel, dim, inputs, outputs in specs:
-                inputs = [0 if a is _OFF0 or a is _OFF1 else a for a in inputs]
-                cmds.append(wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=self.device,
-                                      record_cmd=True))
-            ch.launches = (key, cmds)
-        for cmd in ch.launches[1]:
-            cmd.set_param_by_name("off0", off0)
-            if cmd.kernel is track_step:
-                cmd.set_param_by_name("off1", off1)
-            cmd.launch()
+
+        return run
 
     def _launch_specs(self, ch: _Chunk, bake: TrajectoryBake, rows=None) -> list:
         """(kernel, dim, inputs, outputs) of one step; the row offsets are the placeholders _OFF0 and _OFF1."""
@@ -407,6 +607,9 @@ class FaceSystem:
         for ch in state.chunks:
             for name, arr in (("position", ch.x), ("velocity", ch.v)):
                 a = arr.numpy()
+                top = float(np.abs(a).max()) if a.size else 0.0  # NaN propagates: one pass when all is well
+                if (top <= bound) if name == "position" else np.isfinite(top):
+                    continue
                 bad = ~np.isfinite(a).all(axis=(1, 2))
                 if name == "position":
                     bad |= np.abs(np.where(np.isfinite(a), a, 0.0)).max(axis=(1, 2)) > bound
@@ -416,3 +619,16 @@ class FaceSystem:
                     raise SimulationBlowUpError(
                         f"face simulation blew up: {name} not finite or beyond {bound:.3g} m at t = {t:.6g} s "
                         f"(batch member {b}, step {state.steps})")
+
+
+#: index of ``off0`` among face_step's arguments (``off1`` follows it)
+_FUSED_OFF0 = [a.label for a in face_step.adj.args].index("off0")
+
+
+def _ranges(counts: np.ndarray) -> np.ndarray:
+    """Concatenated aranges 0..counts[k]-1."""
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    starts = np.repeat(np.cumsum(counts) - counts, counts)
+    return np.arange(total) - starts

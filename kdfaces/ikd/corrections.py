@@ -16,7 +16,6 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import KDInputError
-from ..motion.trajectory import scan_trajectory
 from .bases import Basis
 
 __all__ = ["Slot", "Correction", "CorrectedTrajectory"]
@@ -128,7 +127,7 @@ class CorrectedTrajectory:
                                f"{tuple(self.state_shape)}")
 
     def __getattr__(self, name):  # start, end, fps, frame_times, rig, skeleton, … (static data of the base)
-        if name in ("base", "correction", "bump", "_token", "joints"):
+        if name in ("base", "correction", "bump", "_token", "joints", "scan"):
             # ``joints`` of a corrected face trajectory would silently drop the correction
             raise AttributeError(name)
         return getattr(self.base, name)
@@ -149,15 +148,11 @@ class CorrectedTrajectory:
         return ("corrected", base, corr, self._token if self.bump is not None else None)
 
     def evaluate(self, times, order: int = 2):
-        """x_K + f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays ``(T, *state_shape)``."""
-        return self._evaluate(times, order, self.base.evaluate(times, order))
+        """x_K + f and its time derivatives at ``times`` (T,) → ``order + 1`` arrays ``(T, *state_shape)``.
 
-    def scan(self, times, order: int = 2):
-        """:meth:`evaluate` leaving the base trajectory's sample cache alone (see ``scan_trajectory``)."""
-        return self._evaluate(times, order, scan_trajectory(self.base, times, order))
-
-    def _evaluate(self, times, order, base):
-        out = list(base)
+        :meth:`scan` is the same call: IKD sweeps re-read the same base samples around the constraint times with a
+        new f each time, so even one-off passes over a corrected trajectory go through the base's sample cache."""
+        out = list(self.base.evaluate(times, order))
         if self.correction is not None:
             for k, fk in enumerate(self.correction.evaluate(times, order)):
                 out[k] = out[k] + fk
@@ -171,6 +166,11 @@ class CorrectedTrajectory:
             for k in range(order + 1):
                 out[k] = out[k] + phi[k].reshape(-1, *([1] * e.ndim)) * e
         return tuple(out)
+
+    def scan(self, times, order: int = 2):
+        """:meth:`evaluate` (a one-off pass, see :func:`~kdfaces.motion.scan_trajectory`; it must never fall
+        through to the base's own ``scan``, which would drop f)."""
+        return self.evaluate(times, order)
 
     def positions(self, times):
         """x_K + f at ``times`` (T,) [s] → ``(T, *state_shape)``."""

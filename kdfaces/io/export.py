@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import KDInputError
-from .pointcache import write_pc2, write_usd
+from .pointcache import write_pc2, write_pc2_chunks, write_usd, write_usd_chunks
 
-__all__ = ["EXPORT_KINDS", "export_trajectory", "add_export_option", "export_rig"]
+__all__ = ["EXPORT_KINDS", "export_trajectory", "export_chunks", "add_export_option", "export_rig"]
 
 EXPORT_KINDS = {"usd": ".usdc", "usda": ".usda", "pc2": ".pc2"}
 RIG_FORMATS = ("obj", "gltf", "glb")
@@ -51,6 +51,24 @@ def export_trajectory(path, positions, times, *, kind: str | None = None, faces=
         return write_usd(p, positions, times, rig.faces, fps=fps, prim_name=name, unit_m=unit_m,
                          polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
     return write_usd(p, positions, times, faces, fps=fps, prim_name=name, unit_m=unit_m)
+
+
+def export_chunks(path, chunks, times, *, kind: str, num_vertices: int, fps: float | None = None,
+                  name: str = "face", rig=None, faces=None, unit_m: float = 1.0) -> Path:
+    """:func:`export_trajectory` from ``chunks``, an iterable of consecutive (k, N, 3) blocks of positions [m] in
+    frame order (a bake store read chunk by chunk), so a long take is never held whole: ``path`` is the file,
+    ``times`` (F,) [s] every frame's times, ``num_vertices`` N. A PC2 file is the same bytes as
+    :func:`export_trajectory` of the whole array writes (a USD file the same stage, saved in steps)."""
+    p = Path(path)
+    if kind not in EXPORT_KINDS:
+        raise KDInputError(f"export kind {kind!r}: expected one of {sorted(EXPORT_KINDS)}")
+    if kind == "pc2":
+        return write_pc2_chunks(p, chunks, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m)
+    if rig is not None:
+        return write_usd_chunks(p, chunks, times, rig.faces, num_vertices=num_vertices, fps=fps, prim_name=name,
+                                unit_m=unit_m, polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
+    return write_usd_chunks(p, chunks, times, faces, num_vertices=num_vertices, fps=fps, prim_name=name,
+                            unit_m=unit_m)
 
 
 def add_export_option(parser) -> None:

@@ -27,12 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import KDInputError, check_finite
-from .atomic import atomic_path, write_bytes_atomic
+from ..errors import KDInputError, KDIOError, check_finite
+from .atomic import atomic_path
 from .obj import triangulate
 
 __all__ = [
-    "PointCache", "PC2_HEADER", "PC2_FRAME_OFFSET", "write_usd", "read_usd", "write_pc2", "read_pc2", "infer_fps",
+    "PointCache", "PC2_HEADER", "PC2_FRAME_OFFSET", "write_usd", "write_usd_chunks", "read_usd", "write_pc2",
+    "write_pc2_chunks", "read_pc2", "infer_fps",
 ]
 
 PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, sampling [frames], samples
@@ -117,17 +118,86 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         uvs: per-corner texture coordinates (Σ counts, 2), written as the face-varying primvar ``st``.
         unit_m: metres per stored unit (``metersPerUnit``; 0.01 writes centimetres).
     """
-    from pxr import Sdf, Tf, Usd, UsdGeom, Vt
+    from pxr import Usd
 
     p = Path(path)
     if p.suffix not in (".usd", ".usda", ".usdc"):
         raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
     x, t, f = _check_cache(positions, times, faces, str(p))
+    stage, points_attr, extent_attr, codes = _usd_stage(p, Usd.Stage.CreateInMemory(), x.shape[1], t, f, fps=fps,
+                                                         prim_name=prim_name, polygons=polygons, uvs=uvs,
+                                                         unit_m=unit_m)
+    _usd_samples(points_attr, extent_attr, codes, x, unit_m)
+    with atomic_path(p) as tmp:
+        _usd_export(p, lambda: stage.GetRootLayer().Export(str(tmp)))
+    return p
+
+
+def write_usd_chunks(path, chunks, times, faces, *, num_vertices: int, fps: float | None = None,
+                     prim_name: str = "face", polygons=None, uvs=None, unit_m: float = 1.0) -> Path:
+    """:func:`write_usd` from ``chunks``, an iterable of consecutive (k, N, 3) blocks of positions [m] in frame
+    order. A binary (``.usd``/``.usdc``) layer is saved after every chunk, which lets USD drop the samples already
+    on disk, so memory stays bounded however long the take (a ``.usda`` text layer is held whole until saved).
+    The stage holds the same content as :func:`write_usd` of the whole array; ``times`` (F,) [s] are every frame's.
+    """
+    from pxr import Sdf, Usd
+
+    p = Path(path)
+    n = int(num_vertices)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    check_finite(t, f"{p} frame times")
+    if len(t) == 0 or (len(t) > 1 and not (np.diff(t) > 0).all()):
+        raise KDInputError(f"{p}: frame times must be non-empty and strictly increasing")
+    f = None if faces is None else np.asarray(faces, dtype=np.int64)
+    if p.suffix not in (".usd", ".usda", ".usdc"):
+        raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
+    with atomic_path(p) as tmp:
+        try:
+            layer = Sdf.Layer.CreateNew(str(tmp), args={"format": "usda" if p.suffix == ".usda" else "usdc"})
+        except Exception as e:  # noqa: BLE001 - USD raises Tf.ErrorException
+            raise KDIOError(f"{p}: USD could not create the layer ({str(e).strip().splitlines()[-1]})") from None
+        stage = Usd.Stage.Open(layer)
+        stage, points_attr, extent_attr, codes = _usd_stage(p, stage, n, t, f, fps=fps, prim_name=prim_name,
+                                                             polygons=polygons, uvs=uvs, unit_m=unit_m)
+        done = 0
+        for block in chunks:
+            x = np.asarray(block)
+            where = f"{p}: frames {done}..{done + len(x) - 1}"
+            if x.ndim != 3 or x.shape[1:] != (n, 3):
+                raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
+            if done + len(x) > len(t):
+                raise KDInputError(f"{p}: more frames of positions than the {len(t)} frame times")
+            check_finite(x, f"{where} positions")
+            if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
+                raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+            _usd_samples(points_attr, extent_attr, codes[done:done + len(x)], x, unit_m)
+            done += len(x)
+            if p.suffix != ".usda":
+                _usd_export(p, stage.GetRootLayer().Save)
+        if done != len(t):
+            raise KDInputError(f"{p}: {done} frames of positions for {len(t)} frame times")
+        _usd_export(p, stage.GetRootLayer().Save)
+        del stage, layer, points_attr, extent_attr
+    return p
+
+
+def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, polygons, uvs, unit_m):
+    """Set up ``stage`` for a point cache of ``n`` points at times ``t``: the mesh, its topology and UVs, the stage
+    metadata. Returns (stage, points attribute, extent attribute, time codes)."""
+    from pxr import Sdf, Tf, UsdGeom, Vt
+
+    if p.suffix not in (".usd", ".usda", ".usdc"):
+        raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
     if polygons is not None:
         counts, corners = (np.asarray(a, dtype=np.int64) for a in polygons)
-        if corners.size and corners.max() >= x.shape[1]:
-            raise KDInputError(f"{p}: polygons index vertex {int(corners.max())} but positions have {x.shape[1]}")
+        if corners.size and corners.max() >= n:
+            raise KDInputError(f"{p}: polygons index vertex {int(corners.max())} but positions have {n}")
     elif f is not None:
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise KDInputError(f"{p}: faces: expected shape (M, 3), got {f.shape}")
+        if f.size and (f.min() < 0 or f.max() >= n):
+            raise KDInputError(f"{p}: faces index vertex {int(f.max())} but positions have {n} "
+                               f"vertices per frame (mismatched vertex counts)")
         counts, corners = np.full(len(f), 3, dtype=np.int64), f.reshape(-1)
     else:
         raise KDInputError(f"{p}: USD point caches need faces, shape (M, 3), or polygons")
@@ -135,12 +205,10 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         raise KDInputError(f"{p}: uvs: expected one (u, v) per polygon corner, shape ({len(corners)}, 2)")
     if not (np.isfinite(unit_m) and unit_m > 0):
         raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
-    x = x / unit_m
     if not Sdf.Path.IsValidIdentifier(prim_name):  # shot names like "render-test": "render_test"
         prim_name = Tf.MakeValidIdentifier(str(prim_name) or "mesh")
     rate = infer_fps(t, fps=fps, where=str(p))
     codes = t * rate
-    stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, float(unit_m))
     stage.SetTimeCodesPerSecond(rate)
@@ -156,21 +224,31 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                      UsdGeom.Tokens.faceVarying)
         st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uvs, dtype=np.float32)))
-    points_attr, extent_attr = mesh.CreatePointsAttr(), mesh.CreateExtentAttr()
-    x32 = np.ascontiguousarray(x, dtype=np.float32)
-    extents = np.stack([x32.min(axis=1), x32.max(axis=1)], axis=1)  # (F, 2, 3)
+    return stage, mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), codes
+
+
+def _usd_samples(points_attr, extent_attr, codes: np.ndarray, x: np.ndarray, unit_m: float) -> None:
+    """Time samples of points and extents: positions rounded to float32 metres, then converted to the unit."""
+    from pxr import Usd, Vt
+
+    x32 = np.ascontiguousarray(np.asarray(x).astype(np.float32).astype(np.float64) / unit_m, dtype=np.float32)
+    extents = np.stack([x32.min(axis=1), x32.max(axis=1)], axis=1)  # (k, 2, 3)
     for k, code in enumerate(codes):
         tc = Usd.TimeCode(float(code))
         points_attr.Set(Vt.Vec3fArray.FromNumpy(x32[k]), tc)
         extent_attr.Set(Vt.Vec3fArray.FromNumpy(extents[k]), tc)
-    with atomic_path(p) as tmp:
-        try:
-            ok = stage.GetRootLayer().Export(str(tmp))
-        except Tf.ErrorException as e:
-            raise KDInputError(f"{p}: USD could not write the layer ({str(e).strip().splitlines()[-1]})") from None
-        if not ok:
-            raise KDInputError(f"{p}: USD could not write the layer")
-    return p
+
+
+def _usd_export(p: Path, save) -> None:
+    """Run ``save()`` (a layer Export or Save), turning USD's failures into one :class:`KDInputError`."""
+    from pxr import Tf
+
+    try:
+        ok = save()
+    except Tf.ErrorException as e:
+        raise KDInputError(f"{p}: USD could not write the layer ({str(e).strip().splitlines()[-1]})") from None
+    if not ok:
+        raise KDInputError(f"{p}: USD could not write the layer")
 
 
 def read_usd(path, *, prim_path: str | None = None) -> PointCache:
@@ -241,20 +319,64 @@ def write_pc2(path, positions, times, *, fps: float | None = None, unit_m: float
         unit_m: metres per stored unit (0.01 writes centimetres).
         frame_offset: copies of the first frame written before it (the shot's first frame plays at this frame).
     """
+    x, t, _ = _check_cache(positions, times, None, str(path))
+    return write_pc2_chunks(path, [x], t, num_vertices=x.shape[1], fps=fps, unit_m=unit_m,
+                            frame_offset=frame_offset)
+
+
+def write_pc2_chunks(path, chunks, times, *, num_vertices: int, fps: float | None = None, unit_m: float = 1.0,
+                     frame_offset: int = PC2_FRAME_OFFSET) -> Path:
+    """:func:`write_pc2` from ``chunks``, an iterable of consecutive (k, N, 3) blocks of positions [m] in frame
+    order (e.g. read one at a time from a bake's store), so a long take is never held whole in memory.
+
+    Positions are rounded to float32 metres before the unit conversion, so a cache written from float32 data and
+    one written from the float64 positions it was rounded from are the same bytes. ``times`` (F,) [s] are every
+    frame's times; the chunks must hold exactly F frames.
+    """
     p = Path(path)
-    x, t, _ = _check_cache(positions, times, None, str(p))
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    check_finite(t, f"{p} frame times")
+    if len(t) == 0:
+        raise KDInputError(f"{p}: expected at least one frame time")
     rate = infer_fps(t, fps=fps, where=str(p))
     step = float(t[1] - t[0]) if len(t) > 1 else 1.0 / rate
     if len(t) > 2 and np.abs(np.diff(t) - step).max() > _UNIFORM_RTOL * max(step, abs(t[-1])):
         raise KDInputError(f"{p}: PC2 needs uniformly spaced frame times; got spacings from {np.diff(t).min()} to "
                            f"{np.diff(t).max()} s")
+    if len(t) > 1 and not (np.diff(t) > 0).all():
+        raise KDInputError(f"{p}: frame times must be strictly increasing")
     if not (np.isfinite(unit_m) and unit_m > 0):
         raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
     if isinstance(frame_offset, bool) or int(frame_offset) != frame_offset or frame_offset < 0:
         raise KDInputError(f"{p}: frame_offset: expected a whole number of frames ≥ 0, got {frame_offset}")
-    x = np.concatenate([np.repeat(x[:1], int(frame_offset), axis=0), x]) / unit_m
-    header = PC2_HEADER.pack(PC2_SIGNATURE, 1, x.shape[1], 0.0, step * rate, len(x))
-    return write_bytes_atomic(p, header + np.ascontiguousarray(x, dtype="<f4").tobytes())
+    n = int(num_vertices)
+    header = PC2_HEADER.pack(PC2_SIGNATURE, 1, n, 0.0, step * rate, len(t) + int(frame_offset))
+    done = 0
+    with atomic_path(p) as tmp:
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(header)
+                for block in chunks:
+                    x = np.asarray(block)
+                    where = f"{p}: frames {done}..{done + len(x) - 1}"
+                    if x.ndim != 3 or x.shape[1:] != (n, 3):
+                        raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
+                    if done + len(x) > len(t):
+                        raise KDInputError(f"{p}: more frames of positions than the {len(t)} frame times")
+                    check_finite(x, f"{where} positions")
+                    if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
+                        raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+                    out = (x.astype(np.float32).astype(np.float64) / unit_m).astype("<f4")
+                    if done == 0:
+                        for _ in range(int(frame_offset)):
+                            fh.write(out[:1].tobytes())
+                    fh.write(np.ascontiguousarray(out).tobytes())
+                    done += len(x)
+        except OSError as e:
+            raise KDIOError(f"{p}: write failed ({e.strerror or e})") from None
+        if done != len(t):
+            raise KDInputError(f"{p}: {done} frames of positions for {len(t)} frame times")
+    return p
 
 
 def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m: float = 1.0,

@@ -132,14 +132,19 @@ def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):
     """
     W = skeleton.weights
     rest = (1.0 - W.sum(axis=1))[None, :, None]
-    Wt = W.T[None, :, :, None]  # (1, J, N, 1)
+    Wt = np.ascontiguousarray(W.T)  # (J, N)
 
     def apply(G, v, affine: bool):
-        """Σ_j w_ij (R_j v_i [+ t_j]) for (T, J, 4, 4) transforms and (T, N, 3) vectors, by batched matmul."""
-        P = np.matmul(v[:, None], np.swapaxes(G[:, :, :3, :3], -1, -2))  # (T, J, N, 3)
+        """Σ_j w_ij (R_j v_i [+ t_j]) for (T, J, 4, 4) transforms and (T, N, 3) vectors. LBS is linear in the
+        transforms, so each vertex's blended matrix B_i = Σ_j w_ij G_j [3×4] is formed first (one BLAS product
+        over the joints) and applied once: O(T N (J + 1) 12) work and (T, N, 12) memory, not (T, J, N, 3)."""
+        T, J = G.shape[:2]
+        B = np.matmul(G[:, :, :3, :].reshape(T, J, 12).transpose(0, 2, 1), Wt).reshape(T, 3, 4, -1)  # B_i, (T,3,4,N)
+        vt = v.transpose(0, 2, 1)  # (T, 3, N): vertex-contiguous rows keep the products streaming
+        out = B[:, :, 0] * vt[:, None, 0] + B[:, :, 1] * vt[:, None, 1] + B[:, :, 2] * vt[:, None, 2]
         if affine:
-            P += G[:, :, None, :3, 3]
-        return (P * Wt).sum(axis=1)
+            out += B[:, :, 3]
+        return np.ascontiguousarray(out.transpose(0, 2, 1))
 
     G, dG, ddG = transforms
     x = apply(G, y, True) + rest * y

@@ -64,6 +64,7 @@ class ShotViewer:
         size: window (width, height) in pixels.
         window_s: KD window δ [s], "auto" or "adaptive"; default the shot's ``window_s``.
         widgets: draw the sliders and the play button (they also appear in screenshots).
+        threads: CPU threads per KD state (the face's vertices are split between them).
 
     Attributes:
         frame: the displayed frame index into ``times``.
@@ -78,8 +79,9 @@ class ShotViewer:
     """
 
     def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | str | None = None,
-                 widgets: bool = True, device: str = "cpu"):
+                 widgets: bool = True, device: str = "cpu", threads: int = 2):
         self.shot = shot
+        self.threads = int(threads)
         self.trajectory = shot.trajectory
         self.times = np.asarray(shot.animation.frame_times, dtype=np.float64)
         self.step_s = shot.step_s
@@ -118,7 +120,10 @@ class ShotViewer:
 
         scale = self.settle_time_s / float(self._settle_map.max())
         model = self.shot.model(settle_time_s=self._settle_map * scale, damping_ratio=self.damping_ratio)
-        self.system = FaceSystem(model, device=self.device)
+        old = getattr(self, "system", None)
+        if old is not None:
+            old.close()  # its worker threads
+        self.system = FaceSystem(model, device=self.device, threads=self.threads)
         self._windows = {}
 
     def constraints(self) -> list:
@@ -402,11 +407,13 @@ class ShotViewer:
         self.plotter.show(title=f"kdfaces view: {self.shot.name}")
 
     def close(self) -> None:
-        """Close the window and free the plotter."""
+        """Close the window and free the plotter (and the KD system's worker threads)."""
         self.plotter.close()
+        self.system.close()
 
 
-def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None) -> dict:
+def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
+              threads: int = 2) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
@@ -419,7 +426,7 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         raise KDInputError(f"--frame: {frame} is outside the shot's frames 0..{n - 1}")
     if mode not in MODES:
         raise KDInputError(f"--mode: expected one of {MODES}, got {mode!r}")
-    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window_s=window_s)
+    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window_s=window_s, threads=threads)
     try:
         if mode == "ikd":
             viewer.solve_ikd()
@@ -441,7 +448,7 @@ def _view_command(args) -> dict:
     if args.screenshot is None and args.frame != 0:
         raise KDInputError("--frame: only meaningful with --screenshot FILE")
     return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
-                     size=(args.width, args.height), window_s=args.window)
+                     size=(args.width, args.height), window_s=args.window, threads=args.threads)
 
 
 def add_view_parser(subparsers) -> None:
@@ -455,6 +462,7 @@ def add_view_parser(subparsers) -> None:
                     help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--width", type=int, default=960, help="window width [px]")
     ap.add_argument("--height", type=int, default=720, help="window height [px]")
+    ap.add_argument("--threads", type=int, default=2, help="CPU threads per KD state (default 2)")
     ap.add_argument("--json", action="store_true", help="print the summary to stdout")
     ap.set_defaults(func=_view_command)
 

@@ -11,6 +11,7 @@ from ..geometry.tetmesh import embed_surface, tetrahedralize_cached
 from .attachment import attached_nodes
 from .materials import Material
 from .model import FEMModel
+from .reduced import ReducedHatSystem
 from .system import HatSystem
 
 __all__ = ["DEFAULT_MATERIAL", "DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_EDGE_LENGTH_FAC", "DEFAULT_EPSILON",
@@ -52,16 +53,21 @@ def default_hat_system(rig, *, edge_length_fac: float = defaults.HAT_EDGE_LENGTH
                        envelope_fac: float = defaults.HAT_ENVELOPE_FAC, coarsen: bool = True,
                        material: Material | None = None, rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA,
                        rayleigh_beta: float = defaults.RAYLEIGH_BETA, attach_distance_m: float = 0.02,
-                       cache_dir=None, device: str = "cpu", params: HatParams | None = None, threads: int = 1):
+                       cache_dir=None, device: str = "cpu", params: HatParams | None = None, threads: int = 1,
+                       reduced: bool = False, modes: int = 24):
     """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head.
 
     Meshing as :func:`hat_tetmesh`; ``material`` (default :data:`DEFAULT_MATERIAL`), Rayleigh α [1/s], β [s];
     nodes within ``attach_distance_m`` [m] of the head surface follow the head joint; ``threads`` step batch
-    members in parallel.
+    members in parallel. ``reduced``: a :class:`~kdfem.fem.reduced.ReducedHatSystem` of ``modes`` modes instead of
+    the full FEM.
     """
     surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
                                  params=params, cache_dir=cache_dir)
     att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance_m)
     model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, rayleigh_alpha=rayleigh_alpha,
                      rayleigh_beta=rayleigh_beta, device=device)
-    return HatSystem(model, embedding=embed_surface(mesh, surf.vertices), threads=threads), surf, dt
+    embedding = embed_surface(mesh, surf.vertices)
+    if reduced:
+        return ReducedHatSystem(model, embedding=embedding, threads=threads, modes=modes), surf, dt
+    return HatSystem(model, embedding=embedding, threads=threads), surf, dt

@@ -13,13 +13,24 @@ quadratic dissipation potential; zero for rigid motion, βK at rest, so C = αM 
 assumes).
 
 Each iteration solves P Δv = −r with an SPD matrix P = (1 + hα)M + (h² + hβ)K_P and backtracks on E (Armijo),
-so a step never diverges: it decreases E monotonically. K_P starts as the rest stiffness corotated by the bone
-rotation, P = R A_rest Rᵀ with A_rest factored **once** (scipy ``splu``) and all members solved as one
-multi-right-hand-side solve. A member whose iteration contracts slowly (large local rotations of a floppy tip)
-switches to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-tet rotations; PSD), factored
-for that member and **reused** over the following iterations and steps until it contracts slowly again. Members
-stop iterating as soon as they converge (per-member mask): max|Δv|·h < ``tol``. A state that inverts an element,
-or a line search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
+so a step never diverges: it decreases E monotonically. The shared P is a reference stiffness rotated node by node,
+P = D A_ref Dᵀ, with A_ref = (1 + hα)M + (h² + hβ)K_ref factored **once** (scipy ``splu``), K_ref the rest
+stiffness or the PSD-projected tangent at a reference shape (the hat's sagged equilibrium, whose prestress a floppy
+hat feels), and D = diag(Q_i Q_ref,iᵀ) each free node's rotation from the reference to x_n (the polar rotation of
+the sum of its tets' rotations, a kernel): D is orthogonal and M is lumped, so P⁻¹ = D A_ref⁻¹ Dᵀ costs one solve,
+all members in one multi-right-hand-side solve. It follows a floppy tip's large local rotations, where rotating by
+the bone alone left the Newton iteration contracting slowly. A member whose iteration still contracts slowly switches
+to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-tet rotations; PSD), factored for that
+member and **reused** over the following iterations and steps until it contracts slowly again. The first guess
+extrapolates the velocity from the last two steps. Members
+stop iterating as soon as they converge (per-member mask): max|Δv|·h < ``tol``; an update already below the
+tolerance is taken without a line search (its inversion check is the next step's). A state that inverts an
+element, or a line search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
+
+Speed (the KD scrub path steps one state ~60 times per frame): the per-tet kernels read and write Warp arrays kept
+alive across steps (numpy views of them on the CPU) through launches recorded once, so an evaluation of E and r
+costs one launch and no allocation; batches split over ``threads`` run on one persistent pool (a pool per step
+leaked the SuperLU factorizations its short-lived threads made: 2.2 GB peak in ``kdfem demo``).
 """
 
 from __future__ import annotations
@@ -30,9 +41,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import warp as wp
 
 from kdfaces.errors import SimulationBlowUpError
 
+from . import kernels
 from .attachment import rigid_velocity_field
 from .model import FEMModel
 
@@ -44,12 +57,119 @@ class FEMState:
     """Batch of states: node positions ``x`` (B, N, 3) [m] and velocities ``v`` (B, N, 3) [m/s], float64.
 
     ``precond`` holds each member's reusable Newton factorization (None: the shared corotated rest matrix); it
-    belongs to the state so that results never depend on what was simulated before.
+    belongs to the state so that results never depend on what was simulated before. ``steps`` counts the steps
+    taken; ``head``, when a KD system prepared the window, holds the bone transforms G, Ġ on its step grid, each
+    (S + 1, B, 4, 4) (row k: time t₀ + k·h), so a step reads them instead of evaluating the skeleton, followed
+    by the trajectory, t₀ (B,) [s] and h [s] they were evaluated for. ``v_prev``: the velocities one step back (the
+    Newton iteration's first guess extrapolates from them).
     """
 
     x: np.ndarray
     v: np.ndarray
     precond: list = field(default_factory=list)
+    steps: int = 0
+    head: tuple | None = None
+    v_prev: np.ndarray | None = None
+
+
+#: tets per thread of the blocked kernels on the CPU
+_CPU_BLOCK = 256
+
+
+class _Workspace:
+    """Warp arrays for a batch of ``k`` members, kept alive across steps, and the launches that read them, recorded
+    once: evaluating forces (or rotations) copies the inputs into the arrays (numpy views of them on the CPU) and
+    replays one launch, with no allocation and no argument packing."""
+
+    def __init__(self, model: FEMModel, k: int):
+        d, N, T = model.device, model.mesh.num_nodes, model.mesh.num_tets
+        self.model, self.k = model, k
+        self.x = wp.zeros((k, N), dtype=wp.vec3d, device=d)
+        self.v = wp.zeros((k, N), dtype=wp.vec3d, device=d)
+        self.R = wp.zeros((k, T), dtype=wp.mat33d, device=d)
+        self.f = wp.zeros((k, N), dtype=wp.vec3d, device=d)
+        self.energy = wp.zeros((k, T), dtype=wp.float64, device=d)
+        self.damp = wp.zeros((k, T), dtype=wp.float64, device=d)
+        self.detF = wp.zeros((k, T), dtype=wp.float64, device=d)
+        self.R_out = wp.zeros((k, T), dtype=wp.mat33d, device=d)
+        F = len(model.free)
+        self.vn = wp.zeros((k, N), dtype=wp.vec3d, device=d)
+        self.Aw = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self.cw = wp.zeros(k, dtype=wp.vec3d, device=d)
+        self.r = wp.zeros((k, F), dtype=wp.vec3d, device=d)
+        self.E = wp.zeros(k, dtype=wp.float64, device=d)
+        self.detmin = wp.zeros(k, dtype=wp.float64, device=d)
+        self.scale = wp.zeros(k, dtype=wp.float64, device=d)
+        self._free = wp.array(model.free.astype(np.int32), dtype=wp.int32, device=d)
+        self._mass = wp.array(model.masses, dtype=wp.float64, device=d)
+        mu, lam, a = model.material.kernel_params
+        lmu, llam = model.material.lame
+        beta = model.rayleigh_beta
+        self._cpu = wp.get_device(d).is_cpu
+        block = _CPU_BLOCK if self._cpu else 1  # a thread per tet on a GPU; on the CPU a thread loops over a block
+        blocks = -(-T // block)
+        self._forces = wp.launch(kernels.forces_blocks_kernel, dim=(k, blocks),
+                                 inputs=[self.x, self.v, model.wp_tets, model.wp_Dminv, model.wp_vol, self.R, mu, lam,
+                                         a, model.model_id, beta * lmu, beta * llam, block],
+                                 outputs=[self.f, self.energy, self.damp, self.detF], device=d, record_cmd=True)
+        self._rotations = wp.launch(kernels.rotations_blocks_kernel, dim=(k, blocks),
+                                    inputs=[self.x, model.wp_tets, model.wp_Dminv, block],
+                                    outputs=[self.R_out, self.detF], device=d, record_cmd=True)
+        # tets around each free node (CSR), for the nodal rotations of the preconditioner
+        inc = sp.csr_matrix((np.ones(4 * T), (model.mesh.tets.ravel(), np.repeat(np.arange(T), 4))), shape=(N, T))
+        inc = inc[model.free]
+        self.Q = wp.zeros((k, F), dtype=wp.mat33d, device=d)
+        self._node_rotations = wp.launch(
+            kernels.node_rotations_kernel, dim=(k, -(-F // block)),
+            inputs=[self.R_out, wp.array(inc.indptr.astype(np.int32), dtype=wp.int32, device=d),
+                    wp.array(inc.indices.astype(np.int32), dtype=wp.int32, device=d),
+                    self._free, block],
+            outputs=[self.Q], device=d, record_cmd=True)
+        self._potential = None  # recorded on first use (needs h)
+        names = ("x", "v", "R", "f", "energy", "damp", "detF", "R_out", "Q", "vn", "Aw", "cw", "r", "E", "detmin",
+                 "scale")
+        # numpy views of the arrays on the CPU (made once: making a view costs ~10 µs); None on a GPU
+        self._np = {n: getattr(self, n).numpy() for n in names} if self._cpu else None
+
+    def _get(self, name: str) -> np.ndarray:
+        return self._np[name] if self._cpu else getattr(self, name).numpy()
+
+    def _put(self, name: str, value: np.ndarray) -> None:
+        if self._cpu:
+            np.copyto(self._np[name], value.reshape(self._np[name].shape))
+        else:
+            getattr(self, name).assign(np.ascontiguousarray(value))
+
+    def potential(self, x1, v1, vn, R, Aw, cw, h: float):
+        """E (k,) [J], r (k, F, 3) [N·s], min det F (k,) and the round-off scale of E (k,) at positions ``x1`` and
+        velocities ``v1`` (k, N, 3), from velocities ``vn`` at the step start, damping rotations ``R`` (k, T, 3, 3)
+        and the bone's velocity field ``Aw`` (k, 3, 3), ``cw`` (k, 3) (:func:`kernels.potential_kernel`; new
+        arrays)."""
+        md = self.model
+        if self._potential is None or self._h != h:
+            self._h = h
+            self._potential = wp.launch(
+                kernels.potential_kernel, dim=self.k,
+                inputs=[self.x, self.v, self.vn, self.f, self.energy, self.damp, self.detF, self._free, self._mass,
+                        self.Aw, self.cw, float(h), float(md.rayleigh_alpha), wp.vec3d(*md.gravity)],
+                outputs=[self.r, self.E, self.detmin, self.scale], device=md.device, record_cmd=True)
+        for name, value in (("x", x1), ("v", v1), ("vn", vn), ("R", R), ("Aw", Aw), ("cw", cw)):
+            self._put(name, value)
+        if self._cpu:
+            self._np["f"].fill(0.0)
+        else:
+            self.f.zero_()
+        self._forces.launch()
+        self._potential.launch()
+        return self._get("E").copy(), self._get("r").copy(), self._get("detmin").copy(), self._get("scale").copy()
+
+    def rotations(self, x: np.ndarray):
+        """Per-tet polar rotations (k, T, 3, 3), det F (k, T) and the free nodes' rotations (k, F, 3, 3) (the polar
+        rotation of the sum of their tets') at positions ``x`` (k, N, 3) [m] (new arrays)."""
+        self._put("x", x)
+        self._rotations.launch()
+        self._node_rotations.launch()
+        return self._get("R_out").copy(), self._get("detF").copy(), self._get("Q").copy()
 
 
 def apply_frame(G: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -70,22 +190,49 @@ class ImplicitEuler:
     ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails;
     ``slow`` [-]: contraction ratio ``|Δv_k|/|Δv_k−1|`` above which a member refactors its own warped matrix (also
     after a backtracked line search or ``force_it`` iterations; at most once per member and step);
-    ``threads``: batch members are split over this many threads (Warp launches and SuperLU release the GIL).
+    ``threads``: batch members are split over this many threads of one persistent pool (Warp launches and SuperLU
+    release the GIL). ``reference``: positions (N, 3) [m] whose PSD-projected tangent stiffness, rotated per node
+    from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node;
+    attribute ``nodal`` = False rotates it by the bone instead, as before).
     """
 
-    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.5,
-                 force_it: int = 12, threads: int = 1):
+    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.7,
+                 force_it: int = 12, threads: int = 1, reference: np.ndarray | None = None):
         self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
         self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
         self.c_m, self.c_k = 1 + h * model.rayleigh_alpha, h * h + h * model.rayleigh_beta
         self.M = sp.diags(self.c_m * m).tocsr()
-        A = self.M + self.c_k * model.rest_stiffness()
+        self._Q_ref = None
+        if reference is None:
+            K = model.rest_stiffness()
+        else:  # the (PSD-projected) tangent at a reference shape, e.g. the sagged equilibrium: its prestress counts
+            x_ref = np.asarray(reference, dtype=np.float64)
+            K = model.pattern.assemble(model.element_stiffness(x_ref[None], project=True)[0])
+            self._Q_ref = np.swapaxes(_Workspace(model, 1).rotations(x_ref[None])[2][0], -1, -2)  # Q_refᵀ (F, 3, 3)
+        A = self.M + self.c_k * K
         self.lus = [_factor_spd(A) for _ in range(self.threads)]  # one copy per thread
         self.m_free = m.reshape(-1, 3)[:, :1]
         self.g = np.asarray(model.gravity, dtype=np.float64)
         self.iterations: list[int] = []  # iterations of the slowest member, per step
         self.refactors = 0
+        self.evaluations = 0  # evaluations of E and r
+        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="kdfem-step") if self.threads > 1 else None
+        self._workspaces: dict[tuple[int, int], _Workspace] = {}
+        self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
+
+    def workspace(self, k: int, slot: int = 0) -> _Workspace:
+        """The persistent :class:`_Workspace` for ``k`` members used by thread ``slot``."""
+        ws = self._workspaces.get((slot, k))
+        if ws is None:
+            ws = self._workspaces[(slot, k)] = _Workspace(self.model, k)
+        return ws
+
+    def close(self) -> None:
+        """Shut the thread pool down (idempotent)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
 
     def _factor(self, x1: np.ndarray) -> spla.SuperLU:
         """Warped-stiffness Newton matrix of one member at positions x1 (N, 3), factored."""
@@ -94,50 +241,46 @@ class ImplicitEuler:
         self.refactors += 1
         return _factor_spd(self.M + self.c_k * K)
 
-    def _potential(self, xn, vn, v1, Rn, Aw, cw):
+    def _potential(self, xn, vn, v1, Rn, Aw, cw, slot: int = 0):
         """E (B,) [J], gradient r on the free nodes (B, F, 3) [N·s] and min det F (B,) at velocities v1 (B, N, 3)."""
-        md, h, fr, m = self.model, self.h, self.model.free, self.m_free
-        x1 = xn + h * v1
-        f, psi, damp, detF = md.step_terms(x1, v1, Rn)
-        dv = v1[:, fr] - vn[:, fr]
-        u = v1[:, fr] - (np.einsum("bij,bnj->bni", Aw, x1[:, fr]) + cw[:, None])
-        alpha = md.rayleigh_alpha
-        E = (0.5 * (m * dv * dv).sum(axis=(1, 2)) + psi + h * damp + 0.5 * h * alpha * (m * u * u).sum(axis=(1, 2))
-             - h * (m * v1[:, fr] * self.g).sum(axis=(1, 2)))
-        uu = u - h * np.einsum("bji,bnj->bni", Aw, u)  # (I − hA)ᵀ u
-        r = m * dv - h * f[:, fr] + h * md.rayleigh_alpha * m * uu - h * m * self.g
-        return E, r, detF.min(axis=1), np.abs(psi) + h * damp
+        self.evaluations += 1
+        return self.workspace(len(xn), slot).potential(xn + self.h * v1, v1, vn, Rn, Aw, cw, self.h)
 
     def _solve(self, lu, state, idx, r, R):
-        """Δv = −P⁻¹ r for members ``idx`` (their gradients r (k, F, 3), bone rotations R (k, 3, 3))."""
+        """Δv = −P⁻¹ r for members ``idx`` (their gradients r (k, F, 3); rotations R: the bone's (k, 3, 3) or the
+        free nodes' (k, F, 3, 3))."""
         dv = np.empty_like(r)
         shared = [j for j, b in enumerate(idx) if state.precond[b] is None]
         if shared:
-            rl = np.einsum("bji,bnj->bni", R[shared], r[shared])  # into the bone frame: Rᵀ r
             k, F = len(shared), r.shape[1]
+            Rs = R[shared]
+            if Rs.ndim == 3:
+                Rs = np.broadcast_to(Rs[:, None], (k, F, 3, 3))
+            rl = np.einsum("bnji,bnj->bni", Rs, r[shared])  # into each node's frame: Rᵀ r
             sol = lu.solve(np.ascontiguousarray(rl.reshape(k, 3 * F).T)).T.reshape(k, F, 3)
-            dv[shared] = -np.einsum("bij,bnj->bni", R[shared], sol)
+            dv[shared] = -np.einsum("bnij,bnj->bni", Rs, sol)
         for j, b in enumerate(idx):
             if state.precond[b] is not None:
                 dv[j] = -state.precond[b].solve(r[j].ravel()).reshape(-1, 3)
         return dv
 
-    def _iterate(self, lu, state, members, v1, Rn, Aw, cw, R, where):
+    def _iterate(self, lu, state, members, v1, Rn, Aw, cw, R, where, slot: int = 0):
         """Minimise E for the batch members ``members`` (indices) in place on v1; returns iterations used."""
         h, fr = self.h, self.model.free
         xn, vn = state.x[members], state.v[members]
         v = v1[members]
-        E, r, detF, scale = self._potential(xn, vn, v, Rn[members], Aw[members], cw[members])
+        Rm, Awm, cwm = Rn[members], Aw[members], cw[members]
+        E, r, detF, scale = self._potential(xn, vn, v, Rm, Awm, cwm, slot)
         bad = detF <= 0
         if bad.any():  # the extrapolated guess x + h v inverts: start from the positions at t instead
             v[np.ix_(np.flatnonzero(bad), fr)] = 0.0
-            E, r, detF, scale = self._potential(xn, vn, v, Rn[members], Aw[members], cw[members])
+            E, r, detF, scale = self._potential(xn, vn, v, Rm, Awm, cwm, slot)
             if (detF <= 0).any():
                 b = members[int(np.argmin(detF))]
                 raise SimulationBlowUpError(f"{where}: inverted element (det F = {detF.min():.3g}) in batch member {b}")
         active = np.arange(len(members))
         prev = np.full(len(members), np.inf)
-        refactored = np.zeros(len(members), dtype=bool)
+        refactored = np.full(len(members), -self.force_it)  # iteration of each member's last refactorization
         it = 0
         while len(active):
             it += 1
@@ -150,16 +293,20 @@ class ImplicitEuler:
             size = np.abs(d).max(axis=(1, 2))
             if not np.isfinite(d).all():
                 raise SimulationBlowUpError(f"{where}: non-finite Newton update in iteration {it}")
+            # an update below the tolerance is the last one: take it whole, without evaluating E again
+            final = h * size < self.tol
+            for j in np.flatnonzero(final):
+                v[a[j], fr] += d[j]
+            search = np.flatnonzero(~final)
             slope = (d * r[a]).sum(axis=(1, 2))
             t = np.ones(len(a))
-            todo = np.arange(len(a))
+            todo = search
             E_new, r_new, det_new = E[a].copy(), r[a].copy(), detF[a].copy()
             while len(todo):
                 vt = v[a[todo]].copy()
                 vt[:, fr] += t[todo, None, None] * d[todo]
                 sel = a[todo]
-                Et, rt, dt, _ = self._potential(xn[sel], vn[sel], vt, Rn[members[sel]], Aw[members[sel]],
-                                                cw[members[sel]])
+                Et, rt, dt, _ = self._potential(xn[sel], vn[sel], vt, Rm[sel], Awm[sel], cwm[sel], slot)
                 ok = (dt > 0) & (Et <= E[sel] + 1e-4 * t[todo] * slope[todo] + 1e-12 * scale[sel])
                 ok |= (dt > 0) & (h * t[todo] * size[todo] < self.tol)  # below round-off of E: accept
                 done = todo[ok]
@@ -175,11 +322,13 @@ class ImplicitEuler:
             conv = h * size * t < self.tol
             ratio = size / prev[a]
             prev[a] = size
-            slow = ~conv & ~refactored[a] & ((t < 1) | (ratio > self.slow) | (it >= self.force_it))
+            # refactor once per step where the iteration contracts slowly, and again every force_it iterations
+            fresh = it - refactored[a] >= self.force_it
+            slow = ~conv & fresh & ((t < 1) | (ratio > self.slow) | (it >= self.force_it))
             for j in np.flatnonzero(slow):
                 b = members[a[j]]
                 state.precond[b] = self._factor(xn[a[j]] + h * v[a[j]])
-                refactored[a[j]] = True
+                refactored[a[j]] = it
                 prev[a[j]] = np.inf
             active = a[~conv]
         v1[members] = v
@@ -194,25 +343,32 @@ class ImplicitEuler:
         if len(state.precond) != B:
             state.precond = [None] * B
         x_att1 = apply_frame(G1, md.mesh.nodes[att])
-        v1 = state.v.copy()
+        # the first guess: velocity extrapolated from the last two steps (one Newton iteration fewer per step)
+        v1 = state.v.copy() if state.v_prev is None else 2.0 * state.v - state.v_prev
         v1[:, att] = (x_att1 - state.x[:, att]) / h  # the attached positions at t + h are exact
         Aw, cw = rigid_velocity_field(G1, dG1)
-        Rn, detn = md.rotations(state.x)
+        Rn, detn, Qn = self.workspace(B).rotations(state.x)
         if (detn <= 0).any():
             b = int(np.argmin(detn.min(axis=1)))
             raise SimulationBlowUpError(f"{where}: inverted element (det F = {detn.min():.3g}) in batch member {b}")
-        R = G1[:, :3, :3]
+        if not self.nodal:
+            R = G1[:, :3, :3]
+        elif self._Q_ref is None:
+            R = Qn
+        else:  # each node's rotation from the reference shape to x_n
+            R = Qn @ self._Q_ref
         chunks = [c for c in np.array_split(np.arange(B), min(self.threads, B)) if len(c)]
-        if len(chunks) == 1:
-            its = [self._iterate(self.lus[0], state, chunks[0], v1, Rn, Aw, cw, R, where)]
+        if len(chunks) == 1 or self._pool is None:
+            its = [self._iterate(self.lus[0], state, np.arange(B), v1, Rn, Aw, cw, R, where)]
         else:
-            with ThreadPoolExecutor(len(chunks)) as ex:
-                its = list(ex.map(lambda k: self._iterate(self.lus[k], state, chunks[k], v1, Rn, Aw, cw, R, where),
-                                  range(len(chunks))))
+            its = list(self._pool.map(lambda k: self._iterate(self.lus[k], state, chunks[k], v1, Rn, Aw, cw, R, where,
+                                                              slot=k), range(len(chunks))))
         self.iterations.append(max(its))
         state.x += h * v1
         state.x[:, att] = x_att1
+        state.v_prev = state.v.copy()
         state.v[:] = v1
+        state.steps += 1
 
 
 def static_equilibrium(model: FEMModel, *, G: np.ndarray | None = None, rtol: float = 1e-8, max_iter: int = 60,

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import warp as wp
 
-__all__ = ["forces_kernel", "rotations_kernel", "warped_kernel", "hessian_kernel", "mat99"]
+__all__ = ["tet_forces", "forces_kernel", "forces_blocks_kernel", "potential_kernel", "rotations_kernel",
+           "rotations_blocks_kernel", "node_rotations_kernel", "warped_kernel", "hessian_kernel", "mat99"]
 
 
 mat99 = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
@@ -135,21 +136,13 @@ def deformation(x: wp.array2d(dtype=wp.vec3d), b: int, t: wp.vec4i, Dminv: wp.ma
     return Ds * Dminv
 
 
-@wp.kernel
-def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i),
-                  Dminv: wp.array(dtype=wp.mat33d), vol: wp.array(dtype=wp.float64), Rd: wp.array2d(dtype=wp.mat33d),
-                  mu: wp.float64, lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64,
-                  beta_lam: wp.float64, f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
-                  damp_out: wp.array2d(dtype=wp.float64), detF_out: wp.array2d(dtype=wp.float64)):
-    """Elastic + Rayleigh stiffness-damping nodal forces [N] (atomic add into ``f_out`` (B, N)), elastic energy
-    [J], damping (Rayleigh dissipation) potential [W] and det F per (batch, tet).
-
-    Damping is β·K_corot·v: the linear stiffness corotated by the per-tet rotation ``Rd`` (B, T) applied to
-    velocities, stress P_d = R(2βμ ε + βλ tr(ε) I) with ε = sym(RᵀḞ), Ḟ = V_s Dm⁻¹; its potential
-    D = V(βμ ε:ε + ½βλ tr²ε) (so f_d = −∂D/∂v). It is exactly βK v at rest and zero for rigid motion when Rd is
-    the tet's rotation. The Neo-Hookean path needs no SVD (the rotations are computed once per step).
-    """
-    b, e = wp.tid()
+@wp.func
+def tet_forces(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i),
+               Dminv: wp.array(dtype=wp.mat33d), vol: wp.array(dtype=wp.float64), Rd: wp.array2d(dtype=wp.mat33d),
+               mu: wp.float64, lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64, beta_lam: wp.float64,
+               f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
+               damp_out: wp.array2d(dtype=wp.float64), detF_out: wp.array2d(dtype=wp.float64), b: int, e: int):
+    """The body of :func:`forces_kernel` for member ``b`` and tet ``e``."""
     t = tets[e]
     Dinv = Dminv[e]
     F = deformation(x, b, t, Dinv)
@@ -174,6 +167,86 @@ def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), 
 
 
 @wp.kernel
+def forces_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i),
+                  Dminv: wp.array(dtype=wp.mat33d), vol: wp.array(dtype=wp.float64), Rd: wp.array2d(dtype=wp.mat33d),
+                  mu: wp.float64, lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64,
+                  beta_lam: wp.float64, f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
+                  damp_out: wp.array2d(dtype=wp.float64), detF_out: wp.array2d(dtype=wp.float64)):
+    """Elastic + Rayleigh stiffness-damping nodal forces [N] (atomic add into ``f_out`` (B, N)), elastic energy
+    [J], damping (Rayleigh dissipation) potential [W] and det F per (batch, tet).
+
+    Damping is β·K_corot·v: the linear stiffness corotated by the per-tet rotation ``Rd`` (B, T) applied to
+    velocities, stress P_d = R(2βμ ε + βλ tr(ε) I) with ε = sym(RᵀḞ), Ḟ = V_s Dm⁻¹; its potential
+    D = V(βμ ε:ε + ½βλ tr²ε) (so f_d = −∂D/∂v). It is exactly βK v at rest and zero for rigid motion when Rd is
+    the tet's rotation. The Neo-Hookean path needs no SVD (the rotations are computed once per step).
+    """
+    b, e = wp.tid()
+    tet_forces(x, v, tets, Dminv, vol, Rd, mu, lam, a, model, beta_mu, beta_lam, f_out, energy_out, damp_out,
+               detF_out, b, e)
+
+
+@wp.kernel
+def forces_blocks_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d),
+                         tets: wp.array(dtype=wp.vec4i), Dminv: wp.array(dtype=wp.mat33d),
+                         vol: wp.array(dtype=wp.float64), Rd: wp.array2d(dtype=wp.mat33d), mu: wp.float64,
+                         lam: wp.float64, a: wp.float64, model: int, beta_mu: wp.float64, beta_lam: wp.float64,
+                         block: int, f_out: wp.array2d(dtype=wp.vec3d), energy_out: wp.array2d(dtype=wp.float64),
+                         damp_out: wp.array2d(dtype=wp.float64), detF_out: wp.array2d(dtype=wp.float64)):
+    """:func:`forces_kernel` over (batch, block of ``block`` tets), looping over the block's tets: on the CPU,
+    whose launches run threads one after another and reload every argument per thread, a few threads that loop
+    cost a fraction of a thread per tet."""
+    b, k = wp.tid()
+    for e in range(k * block, wp.min((k + 1) * block, tets.shape[0])):
+        tet_forces(x, v, tets, Dminv, vol, Rd, mu, lam, a, model, beta_mu, beta_lam, f_out, energy_out, damp_out,
+                   detF_out, b, e)
+
+
+@wp.kernel
+def potential_kernel(x: wp.array2d(dtype=wp.vec3d), v: wp.array2d(dtype=wp.vec3d), vn: wp.array2d(dtype=wp.vec3d),
+                     f: wp.array2d(dtype=wp.vec3d), energy: wp.array2d(dtype=wp.float64),
+                     damp: wp.array2d(dtype=wp.float64), detF: wp.array2d(dtype=wp.float64),
+                     free: wp.array(dtype=wp.int32), mass: wp.array(dtype=wp.float64), Aw: wp.array(dtype=wp.mat33d),
+                     cw: wp.array(dtype=wp.vec3d), h: wp.float64, alpha: wp.float64, g: wp.vec3d,
+                     r_out: wp.array2d(dtype=wp.vec3d), E_out: wp.array(dtype=wp.float64),
+                     detmin_out: wp.array(dtype=wp.float64), scale_out: wp.array(dtype=wp.float64)):
+    """The incremental potential of backward Euler and its gradient, per batch member (one thread loops over the
+    member's tets and free nodes; see :mod:`kdfem.fem.integrator`), from the per-tet terms of :func:`forces_kernel`
+    at x = x_n + h v:
+
+        E = Σ_free ½ m |v − v_n|² + Ψ + h D + ½ h α Σ_free m |v − w(x)|² − h Σ_free m v·g,   w(x) = A x + c,
+        r = m (v − v_n) − h f + h α m (I − hA)ᵀ (v − w(x)) − h m g   on each free node (``r_out`` (B, F)),
+
+    with min det F over the tets and the round-off scale |Ψ| + h D of E."""
+    b = wp.tid()
+    psi = wp.float64(0.0)
+    dsum = wp.float64(0.0)
+    dmin = detF[b, 0]
+    for e in range(energy.shape[1]):
+        psi += energy[b, e]
+        dsum += damp[b, e]
+        dmin = wp.min(dmin, detF[b, e])
+    A = Aw[b]
+    At = wp.transpose(A)
+    c = cw[b]
+    kin = wp.float64(0.0)
+    rel = wp.float64(0.0)
+    grav = wp.float64(0.0)
+    for i in range(free.shape[0]):
+        n = free[i]
+        m = mass[n]
+        vi = v[b, n]
+        dv = vi - vn[b, n]
+        u = vi - (A * x[b, n] + c)
+        kin += m * wp.dot(dv, dv)
+        rel += m * wp.dot(u, u)
+        grav += m * wp.dot(vi, g)
+        r_out[b, i] = m * dv - h * f[b, n] + (h * alpha * m) * (u - h * (At * u)) - (h * m) * g
+    E_out[b] = wp.float64(0.5) * kin + psi + h * dsum + wp.float64(0.5) * h * alpha * rel - h * grav
+    detmin_out[b] = dmin
+    scale_out[b] = wp.abs(psi) + h * dsum
+
+
+@wp.kernel
 def rotations_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i), Dminv: wp.array(dtype=wp.mat33d),
                      R_out: wp.array2d(dtype=wp.mat33d), detF_out: wp.array2d(dtype=wp.float64)):
     """Per (batch, tet): rotation R of the polar decomposition F = RS (det R = +1) and det F."""
@@ -181,6 +254,32 @@ def rotations_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4
     F = deformation(x, b, tets[e], Dminv[e])
     R_out[b, e] = polar_rotation(F)
     detF_out[b, e] = wp.determinant(F)
+
+
+@wp.kernel
+def rotations_blocks_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i),
+                            Dminv: wp.array(dtype=wp.mat33d), block: int, R_out: wp.array2d(dtype=wp.mat33d),
+                            detF_out: wp.array2d(dtype=wp.float64)):
+    """:func:`rotations_kernel` over (batch, block of ``block`` tets) (see :func:`forces_blocks_kernel`)."""
+    b, k = wp.tid()
+    for e in range(k * block, wp.min((k + 1) * block, tets.shape[0])):
+        F = deformation(x, b, tets[e], Dminv[e])
+        R_out[b, e] = polar_rotation(F)
+        detF_out[b, e] = wp.determinant(F)
+
+
+@wp.kernel
+def node_rotations_kernel(R: wp.array2d(dtype=wp.mat33d), offsets: wp.array(dtype=wp.int32),
+                          node_tets: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), block: int,
+                          Q_out: wp.array2d(dtype=wp.mat33d)):
+    """Per (batch, block of ``block`` listed nodes): the rotation of node ``nodes[i]``, the polar rotation of the
+    sum of the rotations ``R`` (B, T) of the tets ``node_tets[offsets[i]:offsets[i + 1]]`` around it."""
+    b, k = wp.tid()
+    for i in range(k * block, wp.min((k + 1) * block, nodes.shape[0])):
+        S = wp.mat33d()
+        for j in range(offsets[i], offsets[i + 1]):
+            S = S + R[b, node_tets[j]]
+        Q_out[b, i] = polar_rotation(S)
 
 
 @wp.kernel

@@ -5,6 +5,9 @@ Initial state at a window start t₀: the hat's **static equilibrium under gravi
 v = Ġ(t₀)·X_eq. It is exactly in equilibrium when the head's rotation leaves gravity's direction in the head frame
 unchanged (yaw), and close to it for moderate pitch/roll; starting from the sagged shape (not the stress-free
 rest shape) keeps the window from having to absorb the gravity sag transient.
+
+The head's transforms are evaluated once per window (``prepare``, one FK call for every step of every member) and
+carried by the state; a step only reads its row.
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from .integrator import FEMState, ImplicitEuler, apply_frame, static_equilibrium
 from .model import FEMModel
 
 __all__ = ["HatSystem"]
+
+#: grid samples of the head's transforms kept per trajectory content (3 × 4 × 4 float64 each: ~4 MB)
+_HEAD_CACHE_ROWS = 10_000
 
 
 @dataclass
@@ -46,12 +52,15 @@ class HatSystem:
     def __post_init__(self):
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
         self._steppers: dict[float, ImplicitEuler] = {}
+        self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare
+        self._head_cache: dict = {}  # head transforms on the step grid, by content version (head_on_grid)
 
     def stepper(self, step_s: float) -> ImplicitEuler:
         """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
         key = round(float(step_s), 12)
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads)
+            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads,
+                                                reference=self.rest_equilibrium)
         return self._steppers[key]
 
     # --- KD protocol -------------------------------------------------------------------------------------------
@@ -66,17 +75,69 @@ class HatSystem:
         warn_renamed("HatSystem", "rigid", "observe_kinematic")
         return self.observe_kinematic(trajectory, times)
 
+    def head_on_grid(self, trajectory, start_times, steps: int, step_s: float):
+        """G, Ġ, G̈ of the head, each (S + 1, B, 4, 4), at t₀ + k·h for windows starting at ``start_times`` (B,)
+        [s], k = 0..``steps``, h = ``step_s`` [s].
+
+        Times on the grid trajectory.start + j·h (windows ending on frames) are cached by the trajectory's content
+        (``version``) and h, so a scrub that moves the window by a frame evaluates FK only for the new samples."""
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        h = float(step_s)
+        grid = t0[None, :] + h * np.arange(int(steps) + 1)[:, None]  # (S + 1, B)
+        motion = head_motion(trajectory, joint=self.joint)
+        version = getattr(motion.trajectory, "version", None)
+        origin = float(getattr(motion.trajectory, "start", 0.0))
+        j = np.round((grid - origin) / h)
+        on_grid = np.abs(origin + j * h - grid).max() <= 1e-9 * max(1.0, float(np.abs(grid).max()))
+        if version is None or not on_grid:
+            G = motion.transforms(grid.ravel())
+            return tuple(g.reshape(*grid.shape, 4, 4) for g in G)
+        cache = self._head_cache
+        if cache.get("key") != (version, h, self.joint):
+            cache.clear()
+            cache.update(key=(version, h, self.joint), rows={})
+        rows = cache["rows"]
+        j = j.astype(np.int64)
+        missing = np.setdiff1d(np.unique(j), np.fromiter(rows.keys(), np.int64, len(rows)))
+        if len(missing):
+            if len(rows) + len(missing) > _HEAD_CACHE_ROWS:
+                rows.clear()
+            for jj, G, dG, ddG in zip(missing.tolist(), *motion.transforms(origin + missing * h), strict=True):
+                rows[jj] = np.stack([G, dG, ddG])
+        stacked = np.stack([rows[jj] for jj in j.ravel().tolist()], axis=1)  # (3, (S+1)·B, 4, 4)
+        return tuple(stacked[o].reshape(*grid.shape, 4, 4) for o in range(3))
+
+    def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
+        """Evaluate the head's G, Ġ at every step of windows starting at ``start_times`` (B,) [s] (``steps`` steps
+        of ``step_s`` [s]) at once (:meth:`head_on_grid`); the states :meth:`initial_state` makes next read them."""
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        G, dG, _ = self.head_on_grid(trajectory, t0, steps, step_s)
+        self._pending = (trajectory, t0, float(step_s), (G, dG))
+
     def initial_state(self, trajectory, times: np.ndarray) -> FEMState:
         """The rest equilibrium carried rigidly by the head at ``times`` (B,) [s], with the head's rigid velocity."""
-        G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(times)
+        t0 = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        p = self._pending
+        if p is not None and p[0] is trajectory and np.array_equal(p[1], t0):
+            head = (*p[3], trajectory, t0, p[2])  # G, Ġ, and the window they belong to
+            G, dG = head[0][0], head[1][0]
+        else:
+            head = None
+            G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(t0)
         x = apply_frame(G, self.rest_equilibrium)
         v = apply_frame(dG, self.rest_equilibrium)  # Ġ·X: rotation rate times X plus translation rate
-        return FEMState(x=x, v=v)
+        return FEMState(x=x, v=v, head=head)
 
     def step(self, state: FEMState, trajectory, times: np.ndarray, step_s: float) -> None:
         """One implicit Euler step of ``step_s`` [s] for every member, attached nodes following the head."""
-        G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(np.asarray(times, dtype=np.float64)
-                                                                           + step_s)
+        k = state.steps + 1
+        hd = state.head
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if (hd is not None and k < len(hd[0]) and hd[2] is trajectory and abs(hd[4] - step_s) <= 1e-12 * step_s
+                and np.abs(t - (hd[3] + (k - 1) * hd[4])).max() <= 1e-9 * max(1.0, float(np.abs(t).max()))):
+            G1, dG1 = hd[0][k], hd[1][k]
+        else:  # not prepared, or a different step: evaluate the head at t + h
+            G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(t + step_s)
         self.stepper(step_s).step(state, G1, dG1)
 
     def observe(self, state: FEMState) -> np.ndarray:

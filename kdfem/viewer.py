@@ -1,0 +1,318 @@
+"""``kdfem view``: the scrubbing viewer of §6.6 (Fig. 11) for the hat, like ``kdfaces view`` for faces.
+
+Every displayed frame is the hat's KD state at that frame's time, computed history-free (one ``simulate_kd`` over
+the window δ ending there), so scrubbing back and forth or jumping costs the same per frame; its time in ms is shown
+on screen. A timeline slider picks the frame of the demo animation (the head nods and turns); sliders set δ and the
+material (Young's modulus E, Rayleigh α); a checkbox (key ``r``) toggles between the reduced hat (modes in the head
+frame, :class:`~kdfem.fem.reduced.ReducedHatSystem`, the default: a state costs about a millisecond) and the full
+FEM (:class:`~kdfem.fem.system.HatSystem`). Keys: ``space`` play/stop, ``r`` full/reduced, ``Left``/``Right`` one
+frame. Every slider and key calls a plain method of :class:`HatViewer`, so tests drive it programmatically;
+``kdfem view --screenshot FILE --frame F`` renders one frame off-screen.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from kdfaces import defaults
+from kdfaces.errors import KDInputError
+from kdfaces.io.atomic import atomic_path
+from kdfaces.kd import simulate_kd, window_steps
+from kdfaces.viz.figures import SKIN
+
+__all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
+
+#: The hat's colour on screen.
+HAT_COLOR = "#c8102e"
+
+
+class HatViewer:
+    """A pyvista window over the hat demo: timeline, play/stop, δ and material sliders, full/reduced toggle.
+
+    Args:
+        rig: "default" or a rig file (with a head joint).
+        off_screen: render without a window (screenshots, tests).
+        size: window (width, height) in pixels.
+        window_s: KD window δ [s] (default the demo's, ``defaults.HAT_WINDOW_S``).
+        step_s: simulation step [s] (default ``defaults.HAT_STEP_S``).
+        reduced: start with the reduced hat (else the full FEM).
+        youngs_pa: Young's modulus E [Pa] (default the demo hat's).
+        modes: modes of the reduced hat.
+        widgets: draw the sliders, the toggle and the play button (they also appear in screenshots).
+        cache_dir: where tets of a non-default hat are cached.
+
+    Attributes:
+        frame: the displayed frame index into ``times``; times: the demo's frame times [s], shape (F,).
+        points: the displayed hat node positions [m], shape (N, 3).
+        last_ms: wall time of the last KD state [ms].
+    """
+
+    def __init__(self, *, rig="default", off_screen: bool = False, size=(960, 720), window_s: float | None = None,
+                 step_s: float = defaults.HAT_STEP_S, reduced: bool = True, youngs_pa: float | None = None,
+                 modes: int = 24, widgets: bool = True, cache_dir=None):
+        from kdfaces.io.rigfiles import load_rig
+        from kdfaces.motion.trajectory import KinematicTrajectory
+        from kdfaces.shots.builtin import demo_animation
+
+        from .fem.attachment import attached_nodes
+        from .fem.default_hat import DEFAULT_MATERIAL, hat_tetmesh
+        from .geometry.tetmesh import embed_surface
+
+        self.rig = load_rig(rig)
+        anim = demo_animation()
+        self.trajectory = KinematicTrajectory(self.rig, anim)
+        self.joints = self.trajectory.joints
+        self.step_s = float(step_s)
+        self.times = np.round(anim.frame_times / self.step_s) * self.step_s  # frames on the step grid
+        self.surface_mesh, self.mesh, _ = hat_tetmesh(cache_dir=cache_dir)
+        self.attached = attached_nodes(self.mesh.nodes, self.rig.neutral)
+        self.embedding = embed_surface(self.mesh, self.surface_mesh.vertices)
+        self.youngs_pa = float(DEFAULT_MATERIAL.youngs if youngs_pa is None else youngs_pa)
+        self.rayleigh_alpha = float(defaults.RAYLEIGH_ALPHA)
+        self.modes = int(modes)
+        self.reduced = bool(reduced)
+        self._systems: dict = {}
+        self.window_s = float(defaults.HAT_WINDOW_S if window_s is None else window_s)
+        window_steps(self.window_s, self.step_s)
+        self.frame = 0
+        self.playing = False
+        self.last_ms = 0.0
+        self._build_scene(off_screen, size, widgets)
+        self.update()
+
+    # --- dynamics ----------------------------------------------------------------------------------------------
+    @property
+    def system(self):
+        """The hat system for the current material and full/reduced choice (built once per combination)."""
+        from .fem.materials import Material
+        from .fem.model import FEMModel
+        from .fem.reduced import ReducedHatSystem
+        from .fem.system import HatSystem
+
+        key = (self.youngs_pa, self.rayleigh_alpha, self.reduced)
+        if key not in self._systems:
+            from .fem.default_hat import DEFAULT_MATERIAL
+
+            material = Material(youngs=self.youngs_pa, poisson=DEFAULT_MATERIAL.poisson,
+                                density=DEFAULT_MATERIAL.density, model=DEFAULT_MATERIAL.model)
+            model = FEMModel(self.mesh, material, self.attached, rayleigh_alpha=self.rayleigh_alpha,
+                             rayleigh_beta=defaults.RAYLEIGH_BETA)
+            self._systems[key] = (ReducedHatSystem(model, embedding=self.embedding, modes=self.modes)
+                                  if self.reduced else HatSystem(model, embedding=self.embedding))
+        return self._systems[key]
+
+    def state(self, frame: int | None = None) -> np.ndarray:
+        """Hat node positions (N, 3) [m] of ``frame`` (default the displayed one); sets ``last_ms``."""
+        k = self.frame if frame is None else frame
+        t0 = time.perf_counter()
+        x = simulate_kd(self.system, self.joints, [self.times[k]], self.window_s, step_s=self.step_s)[0]
+        self.last_ms = 1e3 * (time.perf_counter() - t0)
+        return x
+
+    # --- callbacks (sliders, keys, buttons) --------------------------------------------------------------------
+    def set_frame(self, value) -> None:
+        """Timeline slider: show frame ``round(value)`` (clamped to the animation)."""
+        self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
+        self.update()
+
+    def step_frame(self, delta: int = 1) -> None:
+        """Move ``delta`` frames, wrapping around."""
+        self.set_frame((self.frame + int(delta)) % len(self.times))
+
+    def set_window(self, value) -> None:
+        """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
+        window_steps(float(value), self.step_s)
+        self.window_s = float(value)
+        self.update()
+
+    def set_youngs(self, value_kpa) -> None:
+        """Material slider: Young's modulus E [kPa]."""
+        v = float(value_kpa)
+        if not (np.isfinite(v) and v > 0):
+            raise KDInputError(f"Young's modulus: expected positive kPa, got {value_kpa}")
+        self.youngs_pa = 1e3 * v
+        self.update()
+
+    def set_damping(self, value) -> None:
+        """Material slider: Rayleigh α [1/s] (mass damping, relative to the head)."""
+        v = float(value)
+        if not (np.isfinite(v) and v >= 0):
+            raise KDInputError(f"Rayleigh alpha: expected a non-negative number of 1/s, got {value}")
+        self.rayleigh_alpha = v
+        self.update()
+
+    def set_reduced(self, reduced) -> None:
+        """Toggle (key ``r``): the reduced hat (True) or the full FEM (False)."""
+        self.reduced = bool(reduced)
+        self.update()
+
+    def toggle_reduced(self) -> None:
+        """Switch between the reduced hat and the full FEM."""
+        self.set_reduced(not self.reduced)
+
+    def set_playing(self, playing) -> None:
+        """Play button / ``space``: start or stop playback (the timer calls :meth:`tick`)."""
+        self.playing = bool(playing)
+        self.update_text()
+
+    def toggle_play(self) -> None:
+        """Start or stop playback."""
+        self.set_playing(not self.playing)
+
+    def tick(self, *_) -> None:
+        """Timer: advance one frame while playing."""
+        if self.playing:
+            self.step_frame(1)
+
+    # --- scene -------------------------------------------------------------------------------------------------
+    def _build_scene(self, off_screen: bool, size, widgets: bool) -> None:
+        import pyvista as pv
+
+        def poly(points, faces):
+            f = np.asarray(faces, dtype=np.int64)
+            return pv.PolyData(np.asarray(points, dtype=np.float64).copy(),
+                               np.hstack([np.full((len(f), 1), 3), f]).ravel())
+
+        self.head = poly(self.rig.neutral, self.rig.faces)
+        self.hat = poly(self.surface_mesh.vertices, self.surface_mesh.faces)
+        self.plotter = pl = pv.Plotter(off_screen=off_screen, window_size=tuple(size), lighting="three lights")
+        pl.set_background("white")
+        pl.add_mesh(self.head, color=SKIN, smooth_shading=True, specular=0.2)
+        pl.add_mesh(self.hat, color=HAT_COLOR, smooth_shading=True, specular=0.3)
+        center = np.array([0.0, 0.86, 0.0])
+        d = np.array([0.9, 0.25, 0.6])
+        pl.camera.focal_point = center
+        pl.camera.position = center + 1.35 * d / np.linalg.norm(d)
+        pl.camera.up = (0.0, 1.0, 0.0)
+        pl.camera.view_angle = 30.0
+        pl.reset_camera_clipping_range()
+        self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
+        self._sliders = {}
+        if widgets:
+            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
+            n = len(self.times)
+            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, n - 1), value=0, title="frame",
+                                                          pointa=(0.25, 0.08), pointb=(0.95, 0.08),
+                                                          interaction_event="always", fmt="%.0f", style="modern",
+                                                          title_height=0.02)
+            specs = [("window", self.set_window, (self.step_s, max(1.5, self.window_s)), self.window_s,
+                      "window [s]"),
+                     ("youngs", self.set_youngs, (0.5, 30.0), self.youngs_pa / 1e3, "Young's modulus [kPa]"),
+                     ("alpha", self.set_damping, (0.0, 5.0), self.rayleigh_alpha, "Rayleigh alpha [1/s]")]
+            for i, (key, cb, rng, val, title) in enumerate(specs):
+                y = 0.86 - 0.13 * i
+                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
+                                                          pointa=(0.76, y), pointb=(0.98, y), **style)
+            self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
+                                                              size=36, color_on="#1a9850", color_off="grey")
+            self._reduced_button = pl.add_checkbox_button_widget(self.set_reduced, value=self.reduced,
+                                                                 position=(10, 60), size=36, color_on="#3b6fb6",
+                                                                 color_off="grey")
+            pl.add_text("reduced", position=(52, 68), font_size=9, color="black")
+            pl.add_text("play", position=(52, 18), font_size=9, color="black")
+        if not off_screen:
+            pl.add_key_event("space", self.toggle_play)
+            pl.add_key_event("r", self.toggle_reduced)
+            pl.add_key_event("Right", lambda: self.step_frame(1))
+            pl.add_key_event("Left", lambda: self.step_frame(-1))
+
+    def update(self) -> None:
+        """Recompute the displayed frame's KD state and redraw."""
+        x = self.state()
+        self.points = x
+        self.hat.points = self.system.surface(x)
+        self.head.points = self.trajectory.positions([self.times[self.frame]])[0]
+        slider = self._sliders.get("frame")
+        if slider is not None:
+            slider.GetRepresentation().SetValue(self.frame)
+        button = getattr(self, "_reduced_button", None)
+        if button is not None:
+            button.GetRepresentation().SetState(int(self.reduced))
+        self.update_text()
+
+    def status(self) -> str:
+        """The on-screen text: frame, time, full/reduced, ms per KD state, window, material."""
+        n = len(self.times)
+        kind = f"reduced ({self.modes} modes)" if self.reduced else "full FEM"
+        return "\n".join([
+            f"hat demo   frame {self.frame}/{n - 1}   t = {self.times[self.frame]:.2f} s   {kind}"
+            + ("   [playing]" if self.playing else ""),
+            f"KD state: {self.last_ms:.1f} ms   window {self.window_s:.3f} s "
+            f"({window_steps(self.window_s, self.step_s)} steps of {1e3 * self.step_s:.0f} ms)",
+            f"E = {self.youngs_pa / 1e3:.2f} kPa   Rayleigh alpha = {self.rayleigh_alpha:.2f} 1/s   "
+            "(r: full/reduced, space: play)"])
+
+    def update_text(self) -> None:
+        """Redraw the status text."""
+        self._text.SetText(2, self.status())
+        self.plotter.render()
+
+    # --- output ------------------------------------------------------------------------------------------------
+    def screenshot(self, path) -> Path:
+        """Write the current view to ``path`` (PNG), atomically."""
+        from PIL import Image
+
+        self.plotter.render()
+        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
+        with atomic_path(path, ".png") as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+        return Path(path)
+
+    def show(self) -> None:
+        """Open the interactive window (blocks until it is closed); playback at the animation's frame rate."""
+        fps = float(self.trajectory.fps)
+        self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
+        self.plotter.show(title="kdfem view: the hat")
+
+    def close(self) -> None:
+        """Close the window and free the plotter."""
+        self.plotter.close()
+
+
+def view_hat(*, rig="default", screenshot=None, frame: int = 0, reduced: bool = True, window_s=None,
+             youngs_pa=None, size=(960, 720), cache_dir=None) -> dict:
+    """Open the hat viewer, or with ``screenshot`` render ``frame`` off-screen to a PNG. Returns a small summary
+    (frame, time, full/reduced, ms per KD state)."""
+    viewer = HatViewer(rig=rig, off_screen=screenshot is not None, size=size, window_s=window_s, reduced=reduced,
+                       youngs_pa=youngs_pa, cache_dir=cache_dir)
+    try:
+        n = len(viewer.times)
+        if not 0 <= int(frame) < n:
+            raise KDInputError(f"--frame: {frame} is outside the animation's frames 0..{n - 1}")
+        viewer.set_frame(int(frame))
+        summary = {"frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
+                   "system": "reduced" if viewer.reduced else "full", "window_s": viewer.window_s,
+                   "youngs_pa": viewer.youngs_pa, "kd_state_ms": viewer.last_ms}
+        if screenshot is not None:
+            summary["screenshot"] = str(viewer.screenshot(screenshot))
+        else:
+            viewer.show()
+    finally:
+        viewer.close()
+    return summary
+
+
+def _view_command(args) -> dict:
+    if args.screenshot is None and args.frame != 0:
+        raise KDInputError("--frame: only meaningful with --screenshot FILE")
+    return view_hat(rig=args.rig, screenshot=args.screenshot, frame=args.frame, reduced=not args.full,
+                    window_s=args.window, youngs_pa=None if args.youngs_kpa is None else 1e3 * args.youngs_kpa,
+                    size=(args.width, args.height))
+
+
+def add_view_parser(subparsers) -> None:
+    """Add ``kdfem view [--screenshot FILE --frame F] [--full] [--window S] [--youngs-kpa E]``."""
+    ap = subparsers.add_parser("view", help="scrub the hat's KD states interactively (or screenshot one frame)")
+    ap.add_argument("--rig", default="default", help="rig: 'default' or an .npz rig with a head joint")
+    ap.add_argument("--screenshot", metavar="FILE", help="render one frame off-screen to this PNG and exit")
+    ap.add_argument("--frame", type=int, default=0, help="frame index for --screenshot (default 0)")
+    ap.add_argument("--full", action="store_true", help="start with the full FEM instead of the reduced hat")
+    ap.add_argument("--window", type=float, help=f"KD window δ [s] (default {defaults.HAT_WINDOW_S})")
+    ap.add_argument("--youngs-kpa", type=float, help="Young's modulus E [kPa] (default the demo hat's 3)")
+    ap.add_argument("--width", type=int, default=960, help="window width [px]")
+    ap.add_argument("--height", type=int, default=720, help="window height [px]")
+    ap.add_argument("--json", action="store_true", help="print the summary to stdout")
+    ap.set_defaults(func=_view_command)

@@ -113,6 +113,49 @@ def test_one_state_split_over_two_threads_and_the_parallel_path_agree(small):
         FaceSystem(model, kernels="fast")
 
 
+def test_an_interrupted_round_is_finished_by_the_workers_before_the_interrupt_leaves():
+    """Ctrl-C in the calling thread's share of a step: the worker's share (standing in for a kernel) completes before
+    KeyboardInterrupt propagates, so no launch is left running into interpreter exit; the pool then works on, and a
+    worker's own exception reaches the caller."""
+    import signal
+    import threading
+    import time
+
+    from kdfaces.dynamics.system import _Workers
+
+    workers = _Workers(1)
+    done = threading.Event()
+
+    def slow():
+        time.sleep(0.2)
+        done.set()
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):  # raised in the caller's own task
+        workers.run([interrupted, slow])
+    assert done.is_set()
+    done.clear()
+    main = threading.get_ident()
+    threading.Timer(0.05, lambda: signal.pthread_kill(main, signal.SIGINT)).start()
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C while the caller waits for the worker
+        workers.run([lambda: None, slow])
+    assert done.is_set()
+    seen = []
+    workers.run([lambda: seen.append(0), lambda: seen.append(1)])
+    assert sorted(seen) == [0, 1]
+
+    def failing():
+        raise ValueError("worker")
+
+    with pytest.raises(ValueError, match="worker"):
+        workers.run([lambda: None, failing])
+    workers.close()
+    workers.close()
+    assert not any(t.is_alive() for t in workers._threads)
+
+
 @pytest.fixture(scope="module")
 def demo_short(default_rig):
     """The demo's first 2.4 s (head turn, jaw open, blink) with the demo's dynamics."""

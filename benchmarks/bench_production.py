@@ -92,5 +92,41 @@ def bench_bake_peak_memory(repeats: int):
     return out
 
 
+def bench_viewer_fps(repeats: int):
+    """``kdfaces view`` on the 27k rig (two threads, off-screen, the shot's automatic window): frames per second of
+    the KD states alone (``last_ms``) and of whole viewer updates (KD state + redraw, software OpenGL here), while
+    stepping through 60 consecutive frames of the capture."""
+    if not TAKE.exists():
+        return [{"name": f"viewer_fps skipped (capture not present at {TAKE})", "size": "-",
+                 "median_s": float("nan"), "rate": None, "unit": "-"}]
+    from kdfaces.shots.shotfile import load_shot
+    from kdfaces.viz.viewer import ShotViewer
+
+    with tempfile.TemporaryDirectory() as tmp:
+        info = _builder()(Path(tmp) / "rig", target_vertices=27_000)
+        path = Path(tmp) / "view.toml"
+        path.write_text(BAKE_SHOT.format(rig=Path(tmp) / "rig", take=TAKE))
+        viewer = ShotViewer(load_shot(path, cache_dir=Path(tmp) / "cache"), off_screen=True, threads=2)
+        try:
+            kd_ms, update_s = [], []
+            for _ in range(max(1, repeats)):
+                viewer.set_frame(0)
+                for _ in range(60):
+                    t0 = time.perf_counter()
+                    viewer.step_frame(1)
+                    update_s.append(time.perf_counter() - t0)
+                    kd_ms.append(viewer.last_ms)
+        finally:
+            viewer.close()
+    size = f"{info['vertices'] / 1e3:.1f}k vertices, 2 threads, δ = {viewer.window_s:.3f} s, 960×720 off-screen"
+    kd_s = statistics.median(kd_ms) / 1e3
+    upd = statistics.median(update_s)
+    return [{"name": "viewer_fps", "size": size + ", KD state alone", "median_s": kd_s, "rate": 1.0 / kd_s,
+             "unit": "KD states/s"},
+            {"name": "viewer_fps", "size": size + ", whole update (KD + redraw)", "median_s": upd, "rate": 1.0 / upd,
+             "unit": "frames/s"}]
+
+
 BENCHMARKS = [("production_obj_folder_load", bench_obj_folder_load),
-              ("production_bake_peak_rss", bench_bake_peak_memory)]
+              ("production_bake_peak_rss", bench_bake_peak_memory),
+              ("viewer_fps", bench_viewer_fps)]

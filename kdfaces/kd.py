@@ -46,7 +46,7 @@ import numpy as np
 from .defaults import MAX_WINDOW_STEPS, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
-from .resources import format_bytes, memory_budget_bytes, progress_bar
+from .resources import format_bytes, memory_budget_bytes, progress_bar, single_threaded_blas
 
 __all__ = ["KDSystem", "window_steps", "time_steps", "simulate_kd", "simulate_full", "observe_kinematic"]
 
@@ -183,8 +183,14 @@ def simulate_kd(system: KDSystem, trajectory, times, window_s, *, step_s: float 
     same step count whose starts share a phase on the step grid are simulated together, and a system that
     estimates its memory (``memory_bytes``) gets batches that fit ``max_memory_bytes`` (default half the available
     memory): each KD state is its own simulation, so the result does not depend on how the batch is split.
-    ``progress`` shows a bar over the state-steps on stderr when the call runs longer than two seconds.
+    ``progress`` shows a bar over the state-steps on stderr when the call runs longer than two seconds. numpy's BLAS
+    runs on one thread meanwhile (:func:`kdfaces.resources.single_threaded_blas`; the system threads itself).
     """
+    with single_threaded_blas():
+        return _simulate_kd(system, trajectory, times, window_s, step_s, max_memory_bytes, progress)
+
+
+def _simulate_kd(system, trajectory, times, window_s, step_s, max_memory_bytes, progress) -> np.ndarray:
     t = _times(times)
     _check_times(trajectory, t)
     h = default_step(trajectory, step_s)
@@ -215,8 +221,14 @@ def simulate_full(system: KDSystem, trajectory, times, *, step_s: float | None =
 
     ``step_s`` [s] defaults to the trajectory's frame interval. The simulation steps on the grid
     ``start_s`` + k·h (default the trajectory's start); a time between grid points is reached by a final partial
-    step from the grid point before it (the integrator is the same, only that last step is shorter).
+    step from the grid point before it (the integrator is the same, only that last step is shorter). numpy's BLAS
+    runs on one thread meanwhile, as in :func:`simulate_kd`.
     """
+    with single_threaded_blas():
+        return _simulate_full(system, trajectory, times, step_s, start_s)
+
+
+def _simulate_full(system, trajectory, times, step_s, start_s) -> np.ndarray:
     t = _times(times)
     _check_times(trajectory, t)
     h = default_step(trajectory, step_s)

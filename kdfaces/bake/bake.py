@@ -31,7 +31,7 @@ import numpy as np
 
 from .. import defaults
 from ..errors import KDError, KDInputError, KDIOError, KDNumericalError
-from ..resources import progress_bar
+from ..resources import progress_bar, single_threaded_blas
 from .store import BakeStore
 
 __all__ = ["BakeResult", "bake_shot", "export_bake", "bake_summary", "default_store_path", "add_bake_parser",
@@ -283,6 +283,7 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
     return result
 
 
+@single_threaded_blas()  # the window and the solve as kdfaces run computes them, to the bit
 def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_bytes, k, cache_dir, progress,
            fingerprints, payload_type):
     """The client's part: the window (as ``kdfaces run`` resolves it) and the IKD solve; the tasks' payload."""

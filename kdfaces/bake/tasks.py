@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError
-from ..resources import peak_rss_bytes
+from ..resources import peak_rss_bytes, single_threaded_blas
 from .store import STORE_FORMAT, BakeStore
 
 __all__ = ["BakePayload", "bake_chunk", "code_fingerprint", "input_fingerprint", "WORKER_CACHE_SIZE"]
@@ -197,6 +197,7 @@ def _baked(payload: BakePayload) -> tuple[_Baked, bool]:
     return baked, True
 
 
+@single_threaded_blas()  # as kdfaces run: the same bits on every worker
 def bake_chunk(payload: BakePayload, index: int, store_path: str) -> dict:
     """The bake task: KD of chunk ``index``'s frames of the payload's trajectory, written to the store at
     ``store_path`` (positions, then the chunk's completion mark). Returns a small record: frame range, worker,

@@ -15,7 +15,7 @@ from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_full, simulate_kd, window_steps
-from ..resources import format_bytes, memory_budget_bytes, progress_bar
+from ..resources import format_bytes, memory_budget_bytes, progress_bar, single_threaded_blas
 from ..window import adaptive_windows
 from .shotfile import Shot, load_shot
 
@@ -75,6 +75,7 @@ class ShotRun:
 
 
 @renamed_kwargs(window="window_s", damping="step_scale")
+@single_threaded_blas()
 def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
              threads: int = 2, update: str | None = None, step_scale: float | None = None,
              max_memory_bytes: int | None = None, progress: bool = False) -> ShotRun:
@@ -87,7 +88,9 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     their own adaptive windows again, except the constraints' own KD states, which keep the solve's window so the
     constraints hold exactly. ``update``/``step_scale`` override the solver's;
     ``max_memory_bytes`` bounds each KD batch (default half the available memory); ``progress`` shows bars for the
-    stages that take longer than two seconds.
+    stages that take longer than two seconds. numpy's BLAS runs on one thread throughout
+    (:func:`kdfaces.resources.single_threaded_blas`), so the kinematic, KD and IKD trajectories are the same bits on
+    any machine and in :func:`kdfaces.bake.bake_shot`.
     """
     window = window_s
     from ..dynamics import FaceSystem

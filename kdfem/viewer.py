@@ -13,15 +13,14 @@ frame. Every slider and key calls a plain method of :class:`HatViewer`, so tests
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
 from kdfaces import defaults
 from kdfaces.errors import KDInputError
-from kdfaces.io.atomic import atomic_path
 from kdfaces.kd import simulate_kd, window_steps
 from kdfaces.viz.figures import SKIN
+from kdfaces.viz.viewer import PlotterWindow
 
 __all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
 
@@ -29,7 +28,7 @@ __all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
 HAT_COLOR = "#c8102e"
 
 
-class HatViewer:
+class HatViewer(PlotterWindow):
     """A pyvista window over the hat demo: timeline, play/stop, δ and material sliders, full/reduced toggle.
 
     Args:
@@ -245,27 +244,10 @@ class HatViewer:
             f"E = {self.youngs_pa / 1e3:.2f} kPa   Rayleigh alpha = {self.rayleigh_alpha:.2f} 1/s   "
             "(r: full/reduced, space: play)"])
 
-    def update_text(self) -> None:
-        """Redraw the status text."""
-        self._text.SetText(2, self.status())
-        self.plotter.render()
-
     # --- output ------------------------------------------------------------------------------------------------
-    def screenshot(self, path) -> Path:
-        """Write the current view to ``path`` (PNG), atomically."""
-        from PIL import Image
-
-        self.plotter.render()
-        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
-        with atomic_path(path, ".png") as tmp:
-            Image.fromarray(img).save(tmp, format="PNG")
-        return Path(path)
-
     def show(self) -> None:
         """Open the interactive window (blocks until it is closed); playback at the animation's frame rate."""
-        fps = float(self.trajectory.fps)
-        self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
-        self.plotter.show(title="kdfem view: the hat")
+        self._open_window(float(self.trajectory.fps), "kdfem view: the hat")
 
     def close(self) -> None:
         """Close the window and free the plotter."""

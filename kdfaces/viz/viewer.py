@@ -30,7 +30,7 @@ from ..kd import simulate_kd, window_steps
 from .figures import SKIN
 from .markers import constraint_markers
 
-__all__ = ["MODES", "ShotViewer", "view_shot", "add_view_parser", "with_width"]
+__all__ = ["MODES", "ShotViewer", "PlotterWindow", "view_shot", "add_view_parser", "with_width"]
 
 MODES = ("kinematic", "kd", "ikd")
 _MODE_NAMES = {"kinematic": "kinematic", "kd": "KD", "ikd": "IKD"}
@@ -55,7 +55,32 @@ def _initial_width(constraints) -> float:
     return defaults.WIDTH_S
 
 
-class ShotViewer:
+class PlotterWindow:
+    """What the scrubbing viewers (:class:`ShotViewer`, :class:`kdfem.viewer.HatViewer`) share around their
+    ``plotter`` (pyvista) and status ``_text`` actor: redraw the status, write a screenshot, run the window."""
+
+    def update_text(self) -> None:
+        """Redraw the status text (``status()``)."""
+        self._text.SetText(2, self.status())
+        self.plotter.render()
+
+    def screenshot(self, path) -> Path:
+        """Write the current view to ``path`` (PNG), atomically."""
+        from PIL import Image
+
+        self.plotter.render()
+        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
+        with atomic_path(path, ".png") as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+        return Path(path)
+
+    def _open_window(self, fps: float, title: str) -> None:
+        """Open the interactive window (blocks until it is closed), calling ``tick`` at ``fps`` frames per second."""
+        self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
+        self.plotter.show(title=title)
+
+
+class ShotViewer(PlotterWindow):
     """A pyvista window over one shot: timeline, play/stop, parameter sliders, display toggle, IKD solve.
 
     Args:
@@ -384,27 +409,10 @@ class ShotViewer:
                  self.ikd_message + ("  [stale: press i]" if self.ikd_stale else "")]
         return "\n".join(lines)
 
-    def update_text(self) -> None:
-        """Redraw the status text (time, mode, ms per state, IKD)."""
-        self._text.SetText(2, self.status())
-        self.plotter.render()
-
     # --- output ------------------------------------------------------------------------------------------------
-    def screenshot(self, path) -> Path:
-        """Write the current view to ``path`` (PNG), atomically."""
-        from PIL import Image
-
-        self.plotter.render()
-        img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
-        with atomic_path(path, ".png") as tmp:
-            Image.fromarray(img).save(tmp, format="PNG")
-        return Path(path)
-
     def show(self) -> None:
         """Open the interactive window (blocks until it is closed); playback runs at the shot's frame rate."""
-        fps = float(getattr(self.shot.animation, "fps", 25.0))
-        self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
-        self.plotter.show(title=f"kdfaces view: {self.shot.name}")
+        self._open_window(float(getattr(self.shot.animation, "fps", 25.0)), f"kdfaces view: {self.shot.name}")
 
     def close(self) -> None:
         """Close the window and free the plotter (and the KD system's worker threads)."""

@@ -121,9 +121,9 @@ def test_an_interrupted_round_is_finished_by_the_workers_before_the_interrupt_le
     import threading
     import time
 
-    from kdfaces.dynamics.system import _Workers
+    from kdfaces.dynamics.workers import Workers
 
-    workers = _Workers(1)
+    workers = Workers(1)
     done = threading.Event()
 
     def slow():

@@ -125,19 +125,23 @@ _BLAS_STATE = {"depth": 0, "limiter": None, "controller": None}
 
 @contextmanager
 def single_threaded_blas():
-    """Hold numpy's BLAS (OpenBLAS, MKL …) to one thread inside the block, and restore its own setting after.
+    """Hold the BLAS libraries of numpy and scipy (OpenBLAS, MKL …) to one thread inside the block, and restore
+    their own settings after.
 
-    The KD loops spread work over the cores themselves (Warp launches from worker threads, one process per bake
-    worker). A multi-threaded BLAS call in between (blend shapes, skinning) leaves its threads spinning for a while
-    after it returns, on the very cores the kernels need: a 27k-vertex state on two threads went from 26 to 14 ms
-    with BLAS held to one thread. Nested and concurrent blocks share one limit (the first in sets it, the last out
-    restores it); results do not depend on the BLAS thread count then, so they are the same bits on any machine.
+    The KD loops spread work over the cores themselves (Warp launches and SuperLU solves from worker threads, one
+    process per bake worker). A multi-threaded BLAS call in between (blend shapes, skinning, the triangular solves
+    inside SuperLU) leaves its threads spinning for a while after it returns, on the very cores the work needs: a
+    27k-vertex face state on two threads went from 26 to 14 ms with BLAS held to one thread, and two threads of
+    SuperLU solves went from 0.7× to 2× one thread. Nested and concurrent blocks share one limit (the first in sets
+    it, the last out restores it); results do not depend on the BLAS thread count then, so they are the same bits
+    on any machine.
     """
     with _BLAS_LOCK:
         if _BLAS_STATE["depth"] == 0:
-            from threadpoolctl import ThreadpoolController
-
             if _BLAS_STATE["controller"] is None:  # finds the loaded BLAS libraries once (about a millisecond)
+                import scipy.linalg  # noqa: F401 - loads scipy's own OpenBLAS (SuperLU, LAPACK), so it is seen too
+                from threadpoolctl import ThreadpoolController
+
                 _BLAS_STATE["controller"] = ThreadpoolController()
             _BLAS_STATE["limiter"] = _BLAS_STATE["controller"].limit(limits=1, user_api="blas")
         _BLAS_STATE["depth"] += 1

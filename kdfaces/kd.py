@@ -140,6 +140,17 @@ def _batches(system, t0: np.ndarray, n: int, h: float, origin: float, budget: in
 
 
 def _run(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None) -> np.ndarray:
+    own = getattr(system, "run_windows", None)  # a system that runs whole windows itself (the hat: in threads)
+    if own is not None:
+        return own(trajectory, t0, n, h, progress)
+    return step_windows(system, trajectory, t0, n, h, progress)
+
+
+def step_windows(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None) -> np.ndarray:
+    """The protocol loop of one batch: windows starting at ``t0`` (B,) [s], ``n`` steps of ``h`` [s] —
+    ``prepare``, ``initial_state``, ``n`` × ``step`` (``progress.update(B)`` after each) and ``observe``. A system
+    may run its windows itself (method ``run_windows(trajectory, t0, n, h, progress)``, e.g. in threads), and use
+    this for the plain case."""
     _prepare(system, trajectory, t0, n, h)
     state = system.initial_state(trajectory, t0)
     for k in range(n):

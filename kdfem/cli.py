@@ -38,8 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help=f"pytetwild edge length / bbox diagonal (default {defaults.HAT_EDGE_LENGTH_FAC}, ~1k tets)")
     demo.add_argument("--frame-stride", type=int, default=2,
                       help="evaluate every n-th frame of the shot (default 2; summary fps is the evaluated rate)")
-    demo.add_argument("--threads", type=int, default=1,
-                      help="threads stepping the KD batch (default 1: faster than 2 for the hat)")
+    demo.add_argument("--threads", type=int, default=2,
+                      help="threads running the KD batch's windows (default 2)")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)

@@ -31,7 +31,7 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
 def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WINDOW_S,
                  step_s: float = defaults.HAT_STEP_S,
                  edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, frame_stride: int = 2,
-                 threads: int = 1, cache_dir=None) -> dict:
+                 threads: int = 2, cache_dir=None) -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | reduced KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png, reduced_error_vs_full.png and summary.json; returns the
@@ -43,8 +43,8 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     (:class:`~kdfem.fem.reduced.ReducedHatSystem`) is reported per frame against the full simulation: its tip's and
     its largest vertex error. The default hat's tets ship in ``meshes/``; another ``edge_length_fac`` meshes the hat
     once and keeps the tets in ``cache_dir`` by content hash (pytetwild's output differs run to run), when one is
-    given. ``threads`` split the KD batch's members per step (default 1: the hat's per-step Newton work holds the
-    GIL between its launches, so two threads ran the demo 1.15× slower than one; BENCHMARKS.md's hat rows).
+    given. ``threads``: the KD batch runs as that many groups of whole windows in parallel threads
+    (:meth:`~kdfem.fem.HatSystem.run_windows`; the demo runs 1.3× faster on two than on one).
     """
     window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig

@@ -101,6 +101,42 @@ def test_batched_kd_equals_per_frame_kd(demo_hat):
     np.testing.assert_allclose(batch, single, atol=5e-6)
 
 
+def test_threaded_windows_repeat_to_the_bit_count_progress_and_stop_on_an_error(demo_hat, monkeypatch):
+    """Two threads running whole windows (HatSystem.run_windows): the same bytes on every run, within round-off of
+    one thread, every member-step counted once on the progress bar; a blow-up in one group reaches the caller and
+    stops the other group at its next step."""
+    from kdfem.fem.integrator import ImplicitEuler
+
+    traj, system = demo_hat
+    threaded = HatSystem(system.model, embedding=system.embedding, threads=2)
+    t0 = np.array([4.9, 4.94, 4.98, 5.02, 5.06])
+    n, h = 12, 0.01
+
+    class Bar:
+        count = 0
+
+        def update(self, k):
+            Bar.count += k
+
+    a = threaded.run_windows(traj, t0, n, h, Bar())
+    assert Bar.count == len(t0) * n
+    np.testing.assert_array_equal(threaded.run_windows(traj, t0, n, h), a)
+    np.testing.assert_allclose(system.run_windows(traj, t0, n, h), a, rtol=0, atol=5e-6)
+    calls = []
+    step = ImplicitEuler.step
+
+    def failing(self, state, G1, dG1, **kw):
+        calls.append(len(state.x))
+        if len(state.x) == 2:  # the second group (3 + 2 members)
+            raise SimulationBlowUpError("hat: inverted element (test)")
+        return step(self, state, G1, dG1, **kw)
+
+    monkeypatch.setattr(ImplicitEuler, "step", failing)
+    with pytest.raises(SimulationBlowUpError, match="test"):
+        threaded.run_windows(traj, t0, n, h)
+    assert calls.count(3) < n  # the first group stopped early
+
+
 def test_the_shipped_hat_mesh_is_current_and_used():
     """meshes/hat_tets.npz matches today's default hat and settings (else: python scripts/build_hat_mesh.py), and
     the default hat is read from it, so every machine simulates the same tets."""

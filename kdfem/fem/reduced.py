@@ -281,6 +281,9 @@ class ReducedHatSystem(HatSystem):
         return HatSystem(self.model, embedding=self.embedding, tol=self.tol, threads=self.threads, joint=self.joint)
 
     # --- KD protocol -------------------------------------------------------------------------------------------
+    #: the plain protocol loop (prepare, initial_state, step, observe): a reduced window is a few dense products
+    run_windows = None
+
     def prepare(self, trajectory, start_times, steps: int, step_s: float) -> None:
         """The head's transforms on the windows' step grid (``steps`` steps of ``step_s`` [s] from each of
         ``start_times`` (B,) [s]), read by the states :meth:`initial_state` makes next."""

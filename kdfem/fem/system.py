@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kdfaces.deprecation import warn_renamed
+from kdfaces.kd import step_windows
 from kdfaces.motion.ik import point_jacobian
 from kdfaces.motion.joints import root_translation
 
@@ -35,7 +36,8 @@ _HEAD_CACHE_ROWS = 10_000
 class HatSystem:
     """A :class:`FEMModel` attached to the head joint of a face rig, as a KD system.
 
-    ``tol`` [m]: Newton tolerance on the position update; ``threads``: batch members stepped in parallel threads.
+    ``tol`` [m]: Newton tolerance on the position update; ``threads``: a batch of windows is split into this many
+    groups that run their whole windows in parallel threads (:meth:`run_windows`).
     The ``trajectory`` of the protocol methods is the joint-angle trajectory θ_K(t) that moves the head (a
     :class:`kdfaces.motion.JointTrajectory`, possibly corrected by IKD), or a face
     :class:`kdfaces.motion.KinematicTrajectory` standing for its joints
@@ -55,13 +57,64 @@ class HatSystem:
         self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare
         self._head_cache: dict = {}  # head transforms on the step grid, by content version (head_on_grid)
 
-    def stepper(self, step_s: float) -> ImplicitEuler:
-        """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached)."""
-        key = round(float(step_s), 12)
+    def stepper(self, step_s: float, slot: int = 0) -> ImplicitEuler:
+        """The implicit-Euler stepper for step ``step_s`` [s] (its Newton matrix factored once and cached), one per
+        thread ``slot`` of :meth:`run_windows` (a stepper keeps its own workspaces)."""
+        key = (round(float(step_s), 12), int(slot))
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, threads=self.threads,
-                                                reference=self.rest_equilibrium)
+            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, reference=self.rest_equilibrium)
         return self._steppers[key]
+
+    def run_windows(self, trajectory, start_times, steps: int, step_s: float, progress=None) -> np.ndarray:
+        """KD states of windows starting at ``start_times`` (B,) [s], ``steps`` steps of ``step_s`` [s] each →
+        node positions (B, N, 3) [m]: :meth:`prepare`, :meth:`initial_state`, ``steps`` × :meth:`step` and
+        :meth:`observe`, as :func:`kdfaces.kd.simulate_kd` runs any system, with ``progress.update(members)`` per
+        step.
+
+        With ``threads`` > 1 the members are split into that many groups, each running its whole window in its own
+        thread with its own stepper: the Newton loop between Warp launches holds the GIL, so threads that meet
+        every step (splitting each step's members) gained nothing, while whole windows overlap (about 1.5× on two
+        cores). Every member is its own simulation: the split changes results only in the last bit (SuperLU's
+        multi-column solves round differently with the column count, as any batch split does) and the same
+        ``threads`` give the same bytes. An exception in one group (a blow-up, Ctrl-C in the caller) stops the
+        others at their next step.
+        """
+        t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
+        n, h = int(steps), float(step_s)
+        groups = [g for g in np.array_split(np.arange(len(t0)), min(self.threads, len(t0))) if len(g)]
+        if len(groups) < 2:
+            return step_windows(self, trajectory, t0, n, h, progress)
+        from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+        from threading import Event
+
+        G, dG, _ = self.head_on_grid(trajectory, t0, n, h)  # (n + 1, B, 4, 4) each, in this thread (its cache)
+        steppers = [self.stepper(h, slot) for slot in range(len(groups))]  # made here: the cache is not shared
+        stop = Event()
+
+        def run(slot: int, idx: np.ndarray) -> np.ndarray:
+            state = FEMState(x=apply_frame(G[0, idx], self.rest_equilibrium),
+                             v=apply_frame(dG[0, idx], self.rest_equilibrium))
+            for k in range(n):
+                if stop.is_set():
+                    return state.x
+                steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx])
+                if progress is not None:
+                    progress.update(len(idx))
+            return state.x
+
+        out = np.empty((len(t0), *self.rest_equilibrium.shape))
+        with ThreadPoolExecutor(len(groups), thread_name_prefix="kdfem-windows") as pool:
+            futures = [pool.submit(run, slot, idx) for slot, idx in enumerate(groups)]
+            try:
+                done, _ = wait(futures, return_when=FIRST_EXCEPTION)
+                if any(f.exception() is not None for f in done):
+                    stop.set()  # a failed group stops the others at their next step
+                for idx, f in zip(groups, futures, strict=True):
+                    out[idx] = f.result()
+            except BaseException:
+                stop.set()
+                raise
+        return out
 
     # --- KD protocol -------------------------------------------------------------------------------------------
     def observe_kinematic(self, trajectory, times) -> np.ndarray:

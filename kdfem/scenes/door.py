@@ -259,7 +259,7 @@ def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
     att = attached_nodes(mesh.nodes, rig.neutral, distance=h.attach_distance_m)
     model = FEMModel(mesh, material, att, rayleigh_alpha=h.rayleigh_alpha, rayleigh_beta=h.rayleigh_beta)
     emb = embed_surface(mesh, v)
-    return HatSystem(model, embedding=emb), f, (mesh.tets[emb.tet], emb.weights)
+    return HatSystem(model, embedding=emb, threads=2), f, (mesh.tets[emb.tet], emb.weights)
 
 
 def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None) -> DoorScene:

@@ -32,7 +32,7 @@ def _head_yaw_deg(trajectory, times) -> np.ndarray:
 
 def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = 0.01, threads: int = 2) -> dict:
     """Run the head follow-through demo; write filmstrip_follow.png, head_yaw.png and summary.json to ``out``.
-    Returns the summary. ``threads`` step the face (the hat steps on one: a second thread slows it down)."""
+    Returns the summary. ``threads``: CPU threads of the face's and the hat's KD batches."""
     from kdfaces.articulated import SkeletalSystem, kd_joint_trajectory, neck_chain_model
     from kdfaces.dynamics import FaceSystem
     from kdfaces.io.rigfiles import load_rig
@@ -74,7 +74,7 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = 0
     face_model = demo_face_model(rig)
     face = FaceSystem(face_model, threads=threads)
     face_window = automatic_window(face, face_K).window_s
-    hat, surf, _ = default_hat_system(rig, cache_dir=out / ".cache")
+    hat, surf, _ = default_hat_system(rig, cache_dir=out / ".cache", threads=threads)
     cols = np.array([0.45, 0.6, 0.7, 0.8, 0.95])
     rows_face = {"kinematic head": face_K.positions(cols),
                  "KD head + KD face": simulate_kd(face, face_KD, cols, face_window)}

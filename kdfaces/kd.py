@@ -21,7 +21,10 @@ Optional:
   count, so the system can sample the trajectory on the whole step grid once;
 - ``correction_jacobian(trajectory, time_s, x, indices) -> J``: when the trajectory's state (what IKD corrects,
   ``trajectory.state_shape``) is not the observed points, J = ∂x[indices]/∂state, shape ``(G, 3, *state_shape)``;
-- ``automatic_window(trajectory, *, step_s, epsilon_m) -> WindowEstimate``: the system's own window (§5.3).
+- ``automatic_window(trajectory, *, step_s, epsilon_m) -> WindowEstimate``: the system's own window (§5.3);
+- ``run_windows(trajectory, start_times, steps, step_s, progress) -> ndarray``: run a whole batch of windows
+  itself (the hat: groups of whole windows in parallel threads) instead of the plain loop :func:`step_windows`,
+  returning what ``observe`` would.
 
 The trajectory is read only through ``evaluate(times, order)`` (and static data such as a rig or a skeleton), so a
 corrected trajectory x_K + f is simulated exactly like the original. Its ``version`` changes whenever its content

@@ -128,11 +128,11 @@ def test_threaded_windows_repeat_to_the_bit_count_progress_and_stop_on_an_error(
     def failing(self, state, G1, dG1, **kw):
         calls.append(len(state.x))
         if len(state.x) == 2:  # the second group (3 + 2 members)
-            raise SimulationBlowUpError("hat: inverted element (test)")
+            raise SimulationBlowUpError(f"{kw['where']}: inverted element (test)")
         return step(self, state, G1, dG1, **kw)
 
     monkeypatch.setattr(ImplicitEuler, "step", failing)
-    with pytest.raises(SimulationBlowUpError, match="test"):
+    with pytest.raises(SimulationBlowUpError, match=r"hat \(batch members 3–4, windows from 5.02 s\): .* \(test\)"):
         threaded.run_windows(traj, t0, n, h)
     assert calls.count(3) < n  # the first group stopped early
 

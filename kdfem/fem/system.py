@@ -94,10 +94,11 @@ class HatSystem:
         def run(slot: int, idx: np.ndarray) -> np.ndarray:
             state = FEMState(x=apply_frame(G[0, idx], self.rest_equilibrium),
                              v=apply_frame(dG[0, idx], self.rest_equilibrium))
+            where = f"hat (batch members {idx[0]}–{idx[-1]}, windows from {t0[idx[0]]:.4g} s)"
             for k in range(n):
                 if stop.is_set():
                     return state.x
-                steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx])
+                steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx], where=where)
                 if progress is not None:
                     progress.update(len(idx))
             return state.x

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .errors import KDError
 
-__all__ = ["main", "build_parser", "configure_output", "execute", "command", "peak_memory_bytes"]
+__all__ = ["main", "build_parser", "configure_output", "execute", "command", "finish", "peak_memory_bytes"]
 
 
 def configure_output(*, verbose: bool = False) -> None:
@@ -275,10 +275,26 @@ def _punch(args) -> dict:
     return run_punch(args.out, movie=args.movie)
 
 
+def finish(status: int, argv) -> int:
+    """The exit status of a command-line entry point called with ``argv`` (None: the process's own arguments).
+
+    After an interrupt (130) the process entry point leaves at once (``os._exit``), its message printed and its
+    output folder already abandoned: the interpreter's finalization would run native destructors (VTK render
+    windows, USD stages, Warp modules) whose work the interrupt may have cut short, and one of those crashing would
+    turn a clean exit 130 into a SIGSEGV. A call with an explicit ``argv`` (scripts, tests) just returns."""
+    if status == 130 and argv is None:
+        import os
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return status
+
+
 def main(argv=None) -> int:
     """``kdfaces …``: parse ``argv`` and run the command (see :func:`execute`); returns the exit status."""
-    return command("kdfaces", build_parser, argv,
-                   renders=lambda args: args.command in ("demo", "run", "render", "view"))
+    return finish(command("kdfaces", build_parser, argv,
+                          renders=lambda args: args.command in ("demo", "run", "render", "view")), argv)
 
 
 if __name__ == "__main__":

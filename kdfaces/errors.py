@@ -10,8 +10,6 @@ on stderr and exit status 2.
 
 from __future__ import annotations
 
-import numpy as np
-
 __all__ = ["KDError", "KDInputError", "KDNumericalError", "SimulationBlowUpError", "KDIOError", "check_finite"]
 
 
@@ -37,6 +35,8 @@ class KDIOError(KDError, OSError):
 
 def check_finite(array, what: str) -> None:
     """Raise :class:`KDInputError` naming ``what`` if ``array`` holds NaN or inf."""
+    import numpy as np  # here, not at the top: the command-line tools import this module before taking over Ctrl-C
+
     a = np.asarray(array)
     if a.dtype.kind in "fc" and not np.isfinite(a).all():
         bad = np.argwhere(~np.isfinite(a))[0]

@@ -3,12 +3,40 @@
 - :mod:`kdfem.geometry` — the hat surface, tetrahedralisation, embedding;
 - :mod:`kdfem.fem` — materials, Warp kernels, implicit Euler, attachment, the hat's KD system;
 - :mod:`kdfem.modal` — modes, Γ, the modal window and its report.
+
+Its names are imported on first use (PEP 562), as in :mod:`kdfaces`, so ``import kdfem.cli`` starts fast and the
+``kdfem`` command takes over Ctrl-C before any heavy library loads.
 """
 
-from .demo import run_hat_demo
-from .fem import FEMModel, HatSystem, Material, default_hat_system
-from .geometry import TetMesh, christmas_hat, tetrahedralize
-from .modal import analyse_model, window_report
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "run_hat_demo": "demo",
+    "FEMModel": "fem",
+    "HatSystem": "fem",
+    "Material": "fem",
+    "default_hat_system": "fem",
+    "TetMesh": "geometry",
+    "christmas_hat": "geometry",
+    "tetrahedralize": "geometry",
+    "analyse_model": "modal",
+    "window_report": "modal",
+}
 
 __all__ = ["run_hat_demo", "FEMModel", "HatSystem", "Material", "default_hat_system", "TetMesh", "christmas_hat",
            "tetrahedralize", "analyse_model", "window_report"]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'kdfem' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -8,7 +8,7 @@ import argparse
 import sys
 
 from kdfaces import defaults
-from kdfaces.cli import command
+from kdfaces.cli import command, finish
 
 __all__ = ["main", "build_parser"]
 
@@ -115,7 +115,7 @@ def _add_window_parser(subparsers):
 
 def main(argv=None) -> int:
     """``kdfem …``: parse ``argv`` and run the command (see :func:`kdfaces.cli.execute`); returns the exit status."""
-    return command("kdfem", build_parser, argv, renders=lambda args: True)
+    return finish(command("kdfem", build_parser, argv, renders=lambda args: True), argv)
 
 
 if __name__ == "__main__":

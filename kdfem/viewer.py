@@ -117,10 +117,6 @@ class HatViewer(PlotterWindow):
         self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
         self.update()
 
-    def step_frame(self, delta: int = 1) -> None:
-        """Move ``delta`` frames, wrapping around."""
-        self.set_frame((self.frame + int(delta)) % len(self.times))
-
     def set_window(self, value) -> None:
         """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
         window_steps(float(value), self.step_s)
@@ -151,20 +147,6 @@ class HatViewer(PlotterWindow):
     def toggle_reduced(self) -> None:
         """Switch between the reduced hat and the full FEM."""
         self.set_reduced(not self.reduced)
-
-    def set_playing(self, playing) -> None:
-        """Play button / ``space``: start or stop playback (the timer calls :meth:`tick`)."""
-        self.playing = bool(playing)
-        self.update_text()
-
-    def toggle_play(self) -> None:
-        """Start or stop playback."""
-        self.set_playing(not self.playing)
-
-    def tick(self, *_) -> None:
-        """Timer: advance one frame while playing."""
-        if self.playing:
-            self.step_frame(1)
 
     # --- scene -------------------------------------------------------------------------------------------------
     def _build_scene(self, off_screen: bool, size, widgets: bool) -> None:

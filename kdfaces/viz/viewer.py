@@ -57,7 +57,26 @@ def _initial_width(constraints) -> float:
 
 class PlotterWindow:
     """What the scrubbing viewers (:class:`ShotViewer`, :class:`kdfem.viewer.HatViewer`) share around their
-    ``plotter`` (pyvista) and status ``_text`` actor: redraw the status, write a screenshot, run the window."""
+    ``plotter`` (pyvista), status ``_text`` actor, ``frame``/``times``/``set_frame`` and ``playing`` flag: frame
+    steps, playback, the status redraw, a screenshot, the window loop."""
+
+    def step_frame(self, delta: int = 1) -> None:
+        """Move ``delta`` frames, wrapping around."""
+        self.set_frame((self.frame + int(delta)) % len(self.times))
+
+    def set_playing(self, playing) -> None:
+        """Play button / ``space``: start or stop playback (the timer calls :meth:`tick`)."""
+        self.playing = bool(playing)
+        self.update_text()
+
+    def toggle_play(self) -> None:
+        """Start or stop playback."""
+        self.set_playing(not self.playing)
+
+    def tick(self, *_) -> None:
+        """Timer: advance one frame while playing."""
+        if self.playing:
+            self.step_frame(1)
 
     def update_text(self) -> None:
         """Redraw the status text (``status()``)."""
@@ -204,10 +223,6 @@ class ShotViewer(PlotterWindow):
         self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
         self.update()
 
-    def step_frame(self, delta: int = 1) -> None:
-        """Move ``delta`` frames, wrapping around the shot."""
-        self.set_frame((self.frame + int(delta)) % len(self.times))
-
     def set_settle_time(self, value) -> None:
         """Settle-time slider [s]: the loosest vertex's settle time; a per-vertex map is scaled with it."""
         v = float(value)
@@ -286,20 +301,6 @@ class ShotViewer(PlotterWindow):
         self.mode = "ikd"
         self.update()
         return r
-
-    def set_playing(self, playing) -> None:
-        """Play button / ``space``: start or stop playback (the timer calls :meth:`tick`)."""
-        self.playing = bool(playing)
-        self.update_text()
-
-    def toggle_play(self) -> None:
-        """Start or stop playback."""
-        self.set_playing(not self.playing)
-
-    def tick(self, *_) -> None:
-        """Timer: advance one frame while playing."""
-        if self.playing:
-            self.step_frame(1)
 
     def show_kinematic(self, visible) -> None:
         """Key ``w``: the kinematic pose as a wireframe over the displayed state."""

@@ -56,6 +56,7 @@ def _load_native(args, *, renders: bool, verbose: bool) -> None:
     at exit). It is only recorded meanwhile, and raised right after."""
     held = (signal.SIGINT, signal.SIGTERM)
     previous = {s: signal.signal(s, _record_signal) for s in held}
+    mask = _hold_signals(held)
     try:
         configure_output(verbose=verbose)
         if renders:
@@ -67,6 +68,7 @@ def _load_native(args, *, renders: bool, verbose: bool) -> None:
         if any(str(kind).startswith("usd") for kind in (getattr(args, "export", None) or ())):
             from pxr import Sdf, Tf, Usd, UsdGeom, Vt  # noqa: F401
     finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held signal arrives now, and is recorded
         for s, h in previous.items():
             signal.signal(s, h)
     if _INTERRUPTED.is_set():
@@ -92,6 +94,13 @@ def _record_signal(signum, frame):
     _INTERRUPTED.set()
 
 
+def _hold_signals(held):
+    """Block ``held`` for this thread until the returned previous mask is restored: a signal stays pending instead
+    of interrupting a system call inside a native library's initialisation (a library that does not retry on
+    EINTR can crash there); threads started meanwhile (BLAS, TBB, VTK) inherit the block and never take one."""
+    return signal.pthread_sigmask(signal.SIG_BLOCK, held)
+
+
 def command(prog: str, build, argv, *, renders) -> int:
     """Parse ``argv`` with ``build()`` and :func:`execute` it, with Ctrl-C and SIGTERM taken over from the first
     moment (before any heavy library is imported, so none can swallow the interrupt unnoticed). While the parser
@@ -100,7 +109,11 @@ def command(prog: str, build, argv, *, renders) -> int:
     previous = {s: signal.signal(s, _record_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     _INTERRUPTED.clear()
     try:
-        args = build().parse_args(argv)
+        mask = _hold_signals((signal.SIGINT, signal.SIGTERM))
+        try:
+            args = build().parse_args(argv)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held signal arrives now, and is recorded
         if _INTERRUPTED.is_set():
             print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
             return 130

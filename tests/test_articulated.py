@@ -97,10 +97,11 @@ def test_composite_moments_are_mujocos_mass_matrix_diagonal():
     np.testing.assert_allclose(eng.data.qfrc_bias, model.gravity_torques(q).ravel(), rtol=1e-9, atol=1e-12)
 
 
-def test_parent_torque_compensation_is_algorithm_1():
-    """The triangular solve of :meth:`OnTheBeat.hinge_torques` against On the Beat's Algorithm 1 written out: hinges
-    root to leaf, τ_h = PD_h (eq. 4) + m_h (a_h·s_h), a_h = Σ over in-board hinges g of (τ_g/m_g) s_g (eq. 8–10),
-    on random moments, axes and states of two poses of the arm; equal to round-off (rtol 1e-12)."""
+def test_parent_torque_compensation_is_eq_8_to_10():
+    """:meth:`OnTheBeat.hinge_torques` against On the Beat's eq. 8–10 written out hinge by hinge: τ_h = PD_h (eq. 4)
+    + m_h (a_h·s_h), a_h = Σ over in-board hinges g of (τ⁽⁴⁾_g/m_g) s_g with the in-board hinges' eq. 4 torques
+    (eq. 8: "τ_j is the computed scalar torque around the jth joint from (4)"), on random moments, axes and states
+    of two poses of the arm; equal to round-off (rtol 1e-12)."""
     model = arm_chain_model()
     ctrl = OnTheBeat(model)
     rng = np.random.default_rng(3)
@@ -115,6 +116,7 @@ def test_parent_torque_compensation_is_algorithm_1():
     parents = model.skeleton.parents
     for b in range(B):
         expected = np.zeros(D)
+        pd = m[b] / lam[b] ** 2 * (tx[b] - x[b]) + 2.0 * m[b] / lam[b] * (txd[b] - xd[b])  # eq. 4
         for h in range(D):
             j, c = divmod(h, 3)
             inboard = [3 * j + k for k in range(c)]  # earlier hinges of its own joint, then every ancestor's
@@ -122,9 +124,8 @@ def test_parent_torque_compensation_is_algorithm_1():
             while a >= 0:
                 inboard += [3 * a, 3 * a + 1, 3 * a + 2]
                 a = parents[a]
-            acc = sum((expected[g] / m[b, g] * axes[b, g] for g in inboard), np.zeros(3))
-            pd = m[b, h] / lam[b, h] ** 2 * (tx[b, h] - x[b, h]) + 2.0 * m[b, h] / lam[b, h] * (txd[b, h] - xd[b, h])
-            expected[h] = pd + m[b, h] * acc @ axes[b, h]
+            acc = sum((pd[g] / m[b, g] * axes[b, g] for g in inboard), np.zeros(3))
+            expected[h] = pd[h] + m[b, h] * acc @ axes[b, h]
         np.testing.assert_allclose(tau[b], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
 
 

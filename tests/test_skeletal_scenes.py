@@ -38,7 +38,7 @@ def test_composite_gains_keep_time_better_than_local_gains(punch):
     animated): composite-inertia gains keep time better than local ones, and neither does better than decoupled
     critically damped joints started from the same states (the error eq. 4 makes by itself on a chained sequence).
 
-    The issue's "5× smaller" is not asserted: this metric gives 1.65× (195 ms against 322 ms) on this arm, see
+    The issue's "5× smaller" is not asserted: this metric gives 2.0× (162 ms against 322 ms) on this arm, see
     :func:`kdfaces.articulated.punch.timing_experiment` and the README."""
     s, _ = punch
     t = s["timing"]

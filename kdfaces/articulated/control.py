@@ -6,8 +6,9 @@ Every control step, for every hinge i of the chain (root first):
    7; :meth:`ArticulatedModel.hinge_moments`), or of the hinge's own link only ("local", the baseline of §6 Fig. 8);
 2. critically damped gains from the time t̂ (eq. 4): λ = t̂/n, τ = m/λ²(θ̂ − θ) + 2ζm/λ(ω̂ − ω);
 3. parent-torque compensation (§4.4, eq. 8–10): the angular acceleration a_i = Σ_j (τ_j/m_j) s_j that the in-board
-   hinges' torques give the subtree, projected on s_i and turned into the torque m_i (a_i·s_i) that carries the
-   hinge's out-board links along;
+   hinges' eq. 4 torques τ_j give the subtree, projected on s_i and turned into the torque m_i (a_i·s_i) that
+   carries the hinge's out-board links along (eq. 8 sums the eq. 4 torques of *all* in-board hinges; their
+   compensated torques would count a grandparent's acceleration once per generation in between);
 4. gravity compensation (the torque that holds the out-board composite against gravity), and torque limits
    (``|τ| ≤ τ_max`` per hinge; the number of clipped hinge-steps is counted).
 
@@ -29,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dtrtrs
 from scipy.optimize import brentq
 
 from ..errors import KDInputError
@@ -97,7 +97,6 @@ class OnTheBeat:
                     P[3 * j + c, 3 * a: 3 * a + 3] = 1.0
                 P[3 * j + c, 3 * j: 3 * j + c] = 1.0
         self._inboard = P
-        self._eye = np.eye(3 * J)[None]
         self.clipped = 0
 
     def gains(self, q: np.ndarray, settle_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,16 +154,15 @@ class OnTheBeat:
             moments: m (B, D) [kg·m²], composite (eq. 7) or local; axes: world hinge axes s (B, D, 3);
             q, qd: θ, ω (B, D); target_q, target_qd: θ̂, ω̂ (B, D); lam: λ = t̂/n (B, D) [s].
 
-        τ_h = m_h/λ²(θ̂ − θ) + 2ζ m_h/λ (ω̂ − ω) + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ_g/m_g) s_g (eq. 4, 8–10)."""
+        τ_h = m_h/λ²(θ̂ − θ) + 2ζ m_h/λ (ω̂ − ω) + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ⁽⁴⁾_g/m_g) s_g (eq. 4, 8–10),
+        τ⁽⁴⁾_g the eq. 4 torque of in-board hinge g (P[h, g] = 1: g is in-board of h)."""
         c = (2.0 * self.damping_ratio) / lam
         kd = c * moments
-        acc = (target_q - q) / lam**2 + c * (target_qd - qd)  # τ/m of eq. 4: the hinge's own angular acceleration
+        acc = (target_q - q) / lam**2 + c * (target_qd - qd)  # τ⁽⁴⁾/m: the hinge's own angular acceleration (eq. 4)
         if self.parent_compensation:
-            # in u = τ/m, eq. 8–10 read u_h = acc_h + Σ_g P[h, g] (s_h·s_g) u_g: (I − N) u = acc, N strictly lower
-            # triangular (in-board hinges come first), solved by forward substitution — the paper's single
-            # root-to-leaf pass — one member at a time, so a state does not depend on the batch it is in
-            A = self._eye - self._inboard * (axes @ np.swapaxes(axes, 1, 2))
-            for b in range(len(acc)):
-                acc[b] = dtrtrs(A[b], acc[b], lower=1, unitdiag=1)[0]
+            # eq. 8–9: u_h = a_h·s_h = Σ_g P[h, g] (s_h·s_g) acc_g over every in-board hinge, with the in-board
+            # hinges' eq. 4 accelerations (the world angular acceleration they give h's parent link); one product
+            # per member, so a state does not depend on the batch it is in
+            acc = acc + ((self._inboard * (axes @ np.swapaxes(axes, 1, 2))) @ acc[..., None])[..., 0]
         tau = moments * acc
         return tau, kd

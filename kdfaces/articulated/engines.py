@@ -164,7 +164,7 @@ class MuJoCoEngine:
         position stage computes the hinge axes (``xaxis``), the composite moments about them (the diagonal of the
         joint-space inertia M from the composite-rigid-body algorithm, equal to eq. 7) and the gravity
         compensation (``qfrc_gravcomp``) in C; :meth:`OnTheBeat.hinge_torques` adds eq. 4 and the parent-torque
-        compensation of eq. 8–10 (a triangular solve over the 3J hinges, the only per-step work left in NumPy; a
+        compensation of eq. 8–10 (a product with the 3J × 3J in-board coupling, the only per-step work left in NumPy; a
         pose-dependent gain and a coupling between hinges that no MuJoCo actuator expresses); the motors apply it,
         MuJoCo adds the gravity compensation and clamps the sum to the torque limits, and integrates the damping
         k_d implicitly. Same torques as :meth:`OnTheBeat.torques` with ``split_damping`` and :meth:`step`."""

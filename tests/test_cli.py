@@ -44,6 +44,9 @@ def test_demo_kd_and_ikd_summary(demo_run):
     seams = {c["label"]: c["seam_ratio"] for c in ikd["constraints"]}
     assert all(0.0 <= v <= 1.0 for v in seams.values())
     assert seams["chin"] < 0.35  # 1.0 with the correction on the jaw only (a tear at its boundary)
+    for c in ikd["constraints"]:  # the mesh's floor under each smooth lift's seam ratio; none for the pose lift
+        assert (c["seam_ratio_bound"] is None) == (c["kind"] == "pose")
+        assert c["seam_ratio_bound"] is None or 0.0 < c["seam_ratio_bound"] <= c["seam_ratio"]
     assert ikd["lift_factorizations"] == 3  # chin, lips, brows: once each (the pose lifts as before)
 
 

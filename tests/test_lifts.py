@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kdfaces import GaussianBasis, KinematicTrajectory, end_effector_constraint, solve_ikd, subset_constraint
+from kdfaces import GaussianBasis, KinematicTrajectory, defaults, end_effector_constraint, solve_ikd, subset_constraint
 from kdfaces.dynamics import FaceSystem
 from kdfaces.ikd import Surface, seam_ratio
 from kdfaces.ikd.lifts import mesh_edges
@@ -81,6 +81,55 @@ def test_the_lift_is_seamless_where_the_mesh_resolves_the_falloff():
     assert seam_ratio(e, f) <= 0.05
     far = np.linalg.norm(v[:, :2] - 0.1, axis=1) > 0.02 + 0.05 + 1e-3
     assert (e[far] == 0).all()
+
+
+def strip(n: int, h_m: float = 0.01):
+    """A flat strip of n × 2 vertices, spacing ``h_m`` [m], triangulated like :func:`patch`: (vertices, faces)."""
+    i, j = np.meshgrid(np.arange(n), np.arange(2), indexing="ij")
+    v = np.stack([i.ravel() * h_m, j.ravel() * h_m, np.zeros(2 * n)], axis=1)
+    a = (i[:-1, :-1] * 2 + j[:-1, :-1]).ravel()
+    f = np.concatenate([np.stack([a, a + 2, a + 3], 1), np.stack([a, a + 3, a + 1], 1)])
+    return v, f
+
+
+@pytest.mark.parametrize("m", [3, 7, 20])
+def test_the_harmonic_lift_attains_the_seam_bound_on_a_strip(m):
+    """Closed form: on a strip with the first column fixed and the falloff ending before column m, every path to a
+    vertex held at zero has m edges, so no field has a seam ratio below 1/m; the harmonic lift is the linear ramp
+    (linear precision, and the strip's free edges have zero normal derivative), which attains it: 1/m exactly."""
+    h = 0.01
+    v, f = strip(m + 5, h)
+    first = np.flatnonzero(v[:, 0] == 0.0)
+    for energy in ("harmonic", "biharmonic"):
+        lift = Surface(v, f, energy=energy).lift_for(first, falloff_m=(m - 0.5) * h)
+        assert lift.seam_bound == pytest.approx(1.0 / m, rel=1e-12)
+        e = lift.extend(np.tile([0.0, 0.0, 1e-3], (len(first), 1)))
+        if energy == "harmonic":
+            np.testing.assert_allclose(e[:, 2], 1e-3 * np.clip(1.0 - v[:, 0] / (m * h), 0.0, None), atol=1e-15)
+            assert seam_ratio(e, f) == pytest.approx(1.0 / m, rel=1e-9)
+        else:  # C¹ at both ends: steeper in the middle
+            assert seam_ratio(e, f) > 1.0 / m
+
+
+def test_no_lift_on_the_default_head_goes_below_its_seam_bound(default_rig):
+    """The floor holds for the chin end effector and a lips subset at several falloffs, and at the default 5 cm it
+    is above 0.05 for both: every path from the falloff region to the vertices held at zero is at most 16 (jaw) and
+    18 (lips) edges long on this mesh (edges up to 43 mm; 4.7 mm median), so no correction that falls off to zero
+    within 5 cm has a seam ratio of 0.05 here, however it is computed."""
+    surface = Surface(default_rig.neutral, default_rig.faces)
+    jaw, lips = vertex_group(default_rig, "jaw"), vertex_group(default_rig, "lips")
+    rng = np.random.default_rng(4)
+    for falloff in (0.03, 0.05, 0.1):
+        point = surface.lift_for(jaw, falloff_m=falloff, weights=np.full(len(jaw), 1.0 / len(jaw)))
+        values = surface.lift_for(lips, falloff_m=falloff)
+        fields = [(point, point.point(np.array([0.0, -0.002, 0.0]))),
+                  (values, values.extend(np.tile([0.0, 0.001, 0.0005], (len(lips), 1)))),
+                  (values, values.extend(rng.normal(scale=1e-3, size=(len(lips), 3))))]
+        for lift, e in fields:
+            assert 0.0 < lift.seam_bound <= surface.seam_ratio(e)
+    default = defaults.FALLOFF_M
+    assert surface.lift_for(jaw, falloff_m=default, weights=np.full(len(jaw), 1.0 / len(jaw))).seam_bound > 0.05
+    assert surface.lift_for(lips, falloff_m=default).seam_bound > 0.05
 
 
 def test_other_pieces_stay_still_and_non_manifold_meshes_work():

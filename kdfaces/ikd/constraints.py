@@ -147,6 +147,14 @@ class Constraint:
         (pose and plane constraints lift sharply)."""
         return self.kind in ("subset", "velocity", "end_effector") and self.falloff_m > 0
 
+    def surface_lift(self, surface):
+        """The (cached) :class:`~kdfaces.ikd.SurfaceLift` of this constraint on ``surface``, or None when it
+        lifts sharply (no surface, or not :attr:`smooth`)."""
+        if surface is None or not self.smooth:
+            return None
+        weights = self.weights if self.kind == "end_effector" else None
+        return surface.lift_for(self.indices, falloff_m=self.falloff_m, weights=weights)
+
     def lift(self, r: np.ndarray, num_vertices: int, *, surface=None) -> np.ndarray:
         """A state-sized displacement (N, 3) for residual ``r`` (eq. 1, or eq. 4/14 through J⁺ for end effectors).
 
@@ -154,11 +162,11 @@ class Constraint:
         smooth lift of :mod:`kdfaces.ikd.lifts` (exactly r on the group, or J e = r/(1 + μ²) for an end effector,
         falling off over ``falloff_m``); else r on the constrained vertices and zero elsewhere.
         """
-        if surface is not None and self.smooth:
+        op = self.surface_lift(surface)
+        if op is not None:
             if self.kind == "end_effector":
-                op = surface.lift_for(self.indices, falloff_m=self.falloff_m, weights=self.weights)
                 return op.point(r, pinv_damping=self.pinv_damping)
-            return surface.lift_for(self.indices, falloff_m=self.falloff_m).extend(r)
+            return op.extend(r)
         e = np.zeros((num_vertices, 3))
         if self.kind == "plane":
             # q = n·Σ w_j x_j ⇒ J = [w_1 nᵀ … w_G nᵀ], JJᵀ = ‖w‖², J⁺ r = w_j n r / (‖w‖² (1 + μ²))

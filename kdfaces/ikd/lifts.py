@@ -32,6 +32,12 @@ are welded first, so a lift never tears along them. Degenerate triangles are lef
 in none of the remaining triangles gets zero unless it is in S.
 
 ``falloff_m`` ≤ 0 gives the paper's sharp lift (the correction on S only).
+
+How small a seam a mesh allows: a field that is zero beyond the falloff has to drop from its largest value to zero
+along a path of mesh edges, so some edge carries at least 1/K of it, K the number of edges on that path.
+:attr:`SurfaceLift.seam_bound` is that floor for the lift's region — no field that holds the far vertices at zero,
+smooth or not, has a smaller :func:`seam_ratio` on this mesh — so a seam ratio can only go below it with a larger
+``falloff_m`` or a finer mesh.
 """
 
 from __future__ import annotations
@@ -111,6 +117,8 @@ class SurfaceLift:
         self.factorizations = 0
         self.solves = 0
         self._shape = None
+        self._seam_bound = None
+        self._inside = inside
         if self.weights is not None:
             # J over the welded vertices, Σ_j w_j e_j (a welded vertex sums its copies' weights), split into one row
             # per connected piece of the mesh that holds end-effector vertices: each piece moves its share W_p of the
@@ -139,6 +147,25 @@ class SurfaceLift:
             igl.min_quad_with_fixed_precompute(surface.energy_matrix, self._known, sp.csc_matrix((0, n)), True,
                                                self._data)
             self.factorizations += 1
+
+    @property
+    def seam_bound(self) -> float:
+        """The smallest :func:`seam_ratio` that any field which is zero outside this lift's region can have on
+        this mesh: 1/K, K the largest number of mesh edges from a vertex of the region to the nearest vertex held
+        at zero (beyond ``falloff_m``). The field's largest value ‖f_w‖ drops to zero over at most K edges from w,
+        so one of them carries at least ‖f_w‖/K.
+
+        A piece of the mesh that lies wholly inside the falloff (the lower teeth in a jaw's end effector) has no
+        vertex held at zero and is left out of K: the bound then holds for fields whose largest value is on the
+        other pieces, as it is for this lift's (such a piece moves its share of the point by r, and the rest of
+        the point moves by r on average, so somewhere at least as far). 0 when no piece holds a vertex at zero."""
+        if self._seam_bound is None:
+            zero = np.flatnonzero(~self._inside)
+            hops = csgraph.dijkstra(self.surface._edge_graph(), directed=False, unweighted=True, indices=zero,
+                                    min_only=True)[self._inside] if len(zero) else np.zeros(0)
+            hops = hops[np.isfinite(hops)]
+            self._seam_bound = 1.0 / float(hops.max()) if len(hops) and hops.max() > 0 else 0.0
+        return self._seam_bound
 
     @property
     def kind(self) -> str:

@@ -119,6 +119,18 @@ class IKDResult:
         edges = self.surface.edges if faces is None else None
         return [seam_ratio(self.correction_at(i), faces, edges=edges) for i in range(len(self.constraints))]
 
+    def seam_bounds(self) -> list[float | None] | None:
+        """Each constraint's floor on its seam ratio (:attr:`~kdfaces.ikd.SurfaceLift.seam_bound`: no correction
+        that is zero beyond its ``falloff_m`` has a smaller one on this mesh); None for a constraint that lifts
+        sharply. None when the residuals were not lifted on a surface."""
+        if self.surface is None:
+            return None
+        out = []
+        for c in self.constraints:
+            op = c.surface_lift(self.surface)
+            out.append(None if op is None else float(op.seam_bound))
+        return out
+
     @property
     def errors_before(self) -> np.ndarray:
         """Each constraint's error before the first sweep (C,) [m or m/s]."""

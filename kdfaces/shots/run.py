@@ -184,10 +184,13 @@ def ikd_summary(run: ShotRun) -> dict:
 
     Each constraint also reports ``seam_ratio``: the largest ‖f_a − f_b‖ over mesh edges of its correction at its
     time (f, or ḟ for a velocity constraint) divided by the largest ‖f‖ (1: a tear at the group's boundary; see
-    :func:`~kdfaces.ikd.seam_ratio`), and its ``falloff_m``.
+    :func:`~kdfaces.ikd.seam_ratio`), its ``falloff_m``, and ``seam_ratio_bound``: the smallest seam ratio any
+    correction that is zero beyond ``falloff_m`` can have on this mesh (:attr:`~kdfaces.ikd.SurfaceLift.seam_bound`;
+    null for a constraint that lifts sharply).
     """
     r = run.ikd_result
     seams = r.seam_ratios(run.shot.rig.faces)
+    bounds = r.seam_bounds() or [None] * len(r.constraints)
     return {
         "converged": bool(r.converged),
         "reason": r.reason,
@@ -199,7 +202,8 @@ def ikd_summary(run: ShotRun) -> dict:
         "constraints": [
             {"label": c.label, "time_s": c.time_s, "kind": c.kind, "unit": c.unit,
              "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i]),
-             "seam_ratio": float(seams[i]), "falloff_m": float(c.falloff_m) if c.smooth else 0.0}
+             "seam_ratio": float(seams[i]), "falloff_m": float(c.falloff_m) if c.smooth else 0.0,
+             "seam_ratio_bound": bounds[i]}
             for i, c in enumerate(r.constraints)
         ],
         "independent_check_max_error_m": float(np.max(run.check_errors)),

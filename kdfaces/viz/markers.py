@@ -47,7 +47,7 @@ def constraint_markers(constraint, x, x_prev=None, *, step_s: float = 0.04, max_
 
 def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.ndarray, np.ndarray | None]]], *,
                      step_s: float, reference: np.ndarray, title: str | None = None,
-                     seam_ratios=None) -> Path:
+                     seam_ratios=None, seam_bounds=None) -> Path:
     """A PNG with one column per constraint and one row per label, target and reached markers on each face.
 
     Args:
@@ -59,7 +59,8 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
 
     Each panel is labelled with the constraint's error max‖target − q‖ in mm (mm/s for velocity constraints); with
     ``seam_ratios`` (one per constraint, see :func:`~kdfaces.ikd.seam_ratio`) each column title also gives the seam
-    ratio of the constraint's correction.
+    ratio of the constraint's correction, and with ``seam_bounds`` (one per constraint or None, see
+    :attr:`~kdfaces.ikd.SurfaceLift.seam_bound`) the floor this mesh and falloff put under it ("seam 0.29 ≥ 0.06").
     """
     images, captions = {}, {}
     with FaceRenderer(faces, reference) as renderer:
@@ -70,6 +71,8 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
                                f"{'mm/s' if c.kind == 'velocity' else 'mm'}" for c, (x, xp) in zip(constraints, states)]
     titles = [f"{c.label or c.kind}\nt = {c.time_s:.2f} s" for c in constraints]
     if seam_ratios is not None:
-        titles = [f"{t}, seam {float(s):.2f}" for t, s in zip(titles, seam_ratios, strict=True)]
+        floors = [None] * len(titles) if seam_bounds is None else seam_bounds
+        titles = [f"{t}, seam {float(s):.2f}" + ("" if b is None else f" ≥ {float(b):.2f}")
+                  for t, s, b in zip(titles, seam_ratios, floors, strict=True)]
     fig = image_grid(images, titles, title=title, captions=captions, cell_inches=(2.3, 2.6))
     return save_figure(fig, path)

@@ -60,7 +60,7 @@ def _load_native(args, *, renders: bool, verbose: bool) -> None:
     try:
         configure_output(verbose=verbose)
         if renders:
-            import pyvista  # noqa: F401
+            import pyvista.plotting  # noqa: F401  (pyvista loads its VTK rendering modules lazily, on first use)
             from vtkmodules.vtkCommonCore import vtkLogger
 
             if not verbose:
@@ -83,11 +83,45 @@ def peak_memory_bytes() -> int:
 
 
 _INTERRUPTED = threading.Event()
+_HANDLING = threading.Event()
+
+
+#: While the main thread is importing a module, an interrupt is re-sent after this many seconds instead of raised.
+REDELIVER_S = 0.02
+_IMPORT_MACHINERY = ("<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>")
 
 
 def _on_signal(signum, frame):
+    """SIGINT/SIGTERM while a command runs: KeyboardInterrupt, except inside an import.
+
+    A KeyboardInterrupt raised in the middle of an import can land in the Python half of a native module's
+    initialisation (VTK's modules import their dependencies through a Python loader while their C initialiser
+    runs), which does not expect an exception there and crashes the interpreter. So while any frame of the main
+    thread is in the import machinery, the interrupt is only recorded, and the signal is sent again shortly; it is
+    raised once the import has finished (imports end, so the retries are bounded)."""
     _INTERRUPTED.set()
+    if _importing(frame):
+        timer = threading.Timer(REDELIVER_S, _resend, (signum,))
+        timer.daemon = True
+        timer.start()
+        return
     raise KeyboardInterrupt
+
+
+def _importing(frame) -> bool:
+    """True when ``frame`` or a caller of it runs in Python's import machinery (a module is being imported)."""
+    while frame is not None:
+        if frame.f_code.co_filename in _IMPORT_MACHINERY:
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _resend(signum) -> None:
+    import os
+
+    if _HANDLING.is_set():  # the command is still running under _on_signal
+        os.kill(os.getpid(), signum)
 
 
 def _record_signal(signum, frame):
@@ -133,6 +167,7 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
 
     interrupted = _INTERRUPTED
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    _HANDLING.set()
     folder = None
     t0 = time.perf_counter()
     try:
@@ -175,6 +210,7 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
             return 130
         raise
     finally:
+        _HANDLING.clear()
         for s, h in previous.items():
             signal.signal(s, h)
     wall = time.perf_counter() - t0

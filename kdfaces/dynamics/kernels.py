@@ -129,6 +129,36 @@ def pd_update(xi: wp.vec3, vi: wp.vec3, xk1: wp.vec3, vk1: wp.vec3, kpi: float, 
     return xi + h * vn, vn
 
 
+@wp.func
+def fit_rotation(A: wp.mat33, q_prev: wp.quat, iterative: int, eta: float, iterations: int):
+    """A cluster's best-fit rotation from its moment matrix A: :func:`polar_iterative` warm-started from ``q_prev``
+    (``iterative`` ≠ 0) or :func:`polar_svd`. Returns (q, R): the new warm start (``q_prev`` unchanged with the SVD)
+    and the rotation matrix."""
+    qc = q_prev
+    R = wp.mat33()
+    if iterative != 0:
+        qc = polar_iterative(A, q_prev, eta, iterations)
+        R = wp.quat_to_matrix(qc)
+    else:
+        R = polar_svd(A, eta)
+    return qc, R
+
+
+@wp.func
+def matched_velocity(xi: wp.vec3, vi: wp.vec3, x0: wp.vec3, b: int, clusters: wp.array(dtype=wp.int32), start: int,
+                     end: int, rot: wp.array2d(dtype=wp.mat33), cen: wp.array2d(dtype=wp.vec3),
+                     cen0: wp.array2d(dtype=wp.vec3), ah: float):
+    """Müller eq. 10 for one vertex: v* = v + α/h (g − x), g the mean over its clusters ``clusters[start:end]`` of
+    R_c (x0 − c0_c) + c_c (``ah`` = α/h); v unchanged for a vertex in no cluster."""
+    if end <= start:
+        return vi
+    g = wp.vec3(0.0)
+    for j in range(start, end):
+        c = clusters[j]
+        g += rot[b, c] * (x0 - cen0[b, c]) + cen[b, c]
+    return vi + ah * (g / float(end - start) - xi)
+
+
 @wp.kernel
 def cluster_frames(
     x: wp.array2d(dtype=wp.vec3),
@@ -151,12 +181,9 @@ def cluster_frames(
     Launched over (batch member, cluster): the parallel path (GPU)."""
     b, c = wp.tid()
     A, cx, c0 = cluster_moments(x, xk, b, rows[b] + off0, offsets[c], offsets[c + 1], members, mass)
-    if iterative != 0:
-        qc = polar_iterative(A, q[b, c], eta, iterations)
-        q[b, c] = qc
-        rot_out[b, c] = wp.quat_to_matrix(qc)
-    else:
-        rot_out[b, c] = polar_svd(A, eta)
+    qc, R = fit_rotation(A, q[b, c], iterative, eta, iterations)
+    q[b, c] = qc
+    rot_out[b, c] = R
     c_out[b, c] = cx
     c0_out[b, c] = c0
 
@@ -196,17 +223,8 @@ def track_step(
         v[b, i] = vk[r1, i]
         return
     xi = x[b, i]
-    vi = v[b, i]
-    start = vertex_offsets[i]
-    end = vertex_offsets[i + 1]
-    if end > start:
-        x0 = xk[r0, i]
-        g = wp.vec3(0.0)
-        for j in range(start, end):
-            c = vertex_clusters[j]
-            g += rot[b, c] * (x0 - cen0[b, c]) + cen[b, c]
-        g = g / float(end - start)
-        vi = vi + (alpha / h) * (g - xi)
+    vi = matched_velocity(xi, v[b, i], xk[r0, i], b, vertex_clusters, vertex_offsets[i], vertex_offsets[i + 1], rot,
+                          cen, cen0, alpha / h)
     xn, vn = pd_update(xi, vi, xk[r1, i], vk[r1, i], kp[i], kd[i], h, relative)
     v[b, i] = vn
     x[b, i] = xn
@@ -264,12 +282,9 @@ def face_step(
     for s in range(part_cluster_offsets[part], part_cluster_offsets[part + 1]):
         c = part_clusters[s]
         A, cx, c0 = cluster_moments(x_in, xk, b, r0, offsets[c], offsets[c + 1], members, mass)
-        if iterative != 0:
-            qc = polar_iterative(A, q[b, s], eta, iterations)
-            q[b, s] = qc
-            rot[b, s] = wp.quat_to_matrix(qc)
-        else:
-            rot[b, s] = polar_svd(A, eta)
+        qc, R = fit_rotation(A, q[b, s], iterative, eta, iterations)
+        q[b, s] = qc
+        rot[b, s] = R
         cen[b, s] = cx
         cen0[b, s] = c0
     ah = alpha / h
@@ -280,16 +295,8 @@ def face_step(
             v[b, i] = vk[r1, i]
             continue
         xi = x_in[b, i]
-        vi = v[b, i]
-        start = slot_offsets[s]
-        end = slot_offsets[s + 1]
-        if end > start:
-            x0 = xk[r0, i]
-            g = wp.vec3(0.0)
-            for j in range(start, end):
-                c = slot_clusters[j]
-                g += rot[b, c] * (x0 - cen0[b, c]) + cen[b, c]
-            vi = vi + ah * (g / float(end - start) - xi)
+        vi = matched_velocity(xi, v[b, i], xk[r0, i], b, slot_clusters, slot_offsets[s], slot_offsets[s + 1], rot,
+                              cen, cen0, ah)
         xn, vn = pd_update(xi, vi, xk[r1, i], vk[r1, i], kp[i], kd[i], h, relative)
         v[b, i] = vn
         x_out[b, i] = xn

@@ -165,40 +165,19 @@ class HatViewer(PlotterWindow):
         pl.add_mesh(self.hat, color=HAT_COLOR, smooth_shading=True, specular=0.3)
         center = np.array([0.0, 0.86, 0.0])
         d = np.array([0.9, 0.25, 0.6])
-        pl.camera.focal_point = center
-        pl.camera.position = center + 1.35 * d / np.linalg.norm(d)
-        pl.camera.up = (0.0, 1.0, 0.0)
-        pl.camera.view_angle = 30.0
-        pl.reset_camera_clipping_range()
-        self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
-        self._sliders = {}
+        sliders = [("window", self.set_window, (self.step_s, max(1.5, self.window_s)), self.window_s, "window [s]"),
+                   ("youngs", self.set_youngs, (0.5, 30.0), self.youngs_pa / 1e3, "Young's modulus [kPa]"),
+                   ("alpha", self.set_damping, (0.0, 5.0), self.rayleigh_alpha, "Rayleigh alpha [1/s]")]
+        self._add_controls(center, center + 1.35 * d / np.linalg.norm(d), sliders, widgets=widgets,
+                           off_screen=off_screen)
         if widgets:
-            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
-            n = len(self.times)
-            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, n - 1), value=0, title="frame",
-                                                          pointa=(0.25, 0.08), pointb=(0.95, 0.08),
-                                                          interaction_event="always", fmt="%.0f", style="modern",
-                                                          title_height=0.02)
-            specs = [("window", self.set_window, (self.step_s, max(1.5, self.window_s)), self.window_s,
-                      "window [s]"),
-                     ("youngs", self.set_youngs, (0.5, 30.0), self.youngs_pa / 1e3, "Young's modulus [kPa]"),
-                     ("alpha", self.set_damping, (0.0, 5.0), self.rayleigh_alpha, "Rayleigh alpha [1/s]")]
-            for i, (key, cb, rng, val, title) in enumerate(specs):
-                y = 0.86 - 0.13 * i
-                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
-                                                          pointa=(0.76, y), pointb=(0.98, y), **style)
-            self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
-                                                              size=36, color_on="#1a9850", color_off="grey")
             self._reduced_button = pl.add_checkbox_button_widget(self.set_reduced, value=self.reduced,
                                                                  position=(10, 60), size=36, color_on="#3b6fb6",
                                                                  color_off="grey")
             pl.add_text("reduced", position=(52, 68), font_size=9, color="black")
             pl.add_text("play", position=(52, 18), font_size=9, color="black")
         if not off_screen:
-            pl.add_key_event("space", self.toggle_play)
             pl.add_key_event("r", self.toggle_reduced)
-            pl.add_key_event("Right", lambda: self.step_frame(1))
-            pl.add_key_event("Left", lambda: self.step_frame(-1))
 
     def update(self) -> None:
         """Recompute the displayed frame's KD state and redraw."""

@@ -93,6 +93,36 @@ class PlotterWindow:
             Image.fromarray(img).save(tmp, format="PNG")
         return Path(path)
 
+    def _add_controls(self, center, position, sliders, *, widgets: bool, off_screen: bool) -> None:
+        """The shared scene furniture: the camera looking from ``position`` at ``center`` (3,) [m], the status
+        text, and — with ``widgets`` — the frame slider, one slider per ``(key, callback, (lo, hi), value, title)``
+        of ``sliders`` (stacked on the right) and the play button; in a window, keys ``space`` (play) and
+        ``Right``/``Left`` (frame steps)."""
+        pl = self.plotter
+        pl.camera.focal_point = center
+        pl.camera.position = position
+        pl.camera.up = (0.0, 1.0, 0.0)
+        pl.camera.view_angle = 30.0
+        pl.reset_camera_clipping_range()
+        self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
+        self._sliders = {}
+        if widgets:
+            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
+            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, len(self.times) - 1), value=0,
+                                                          title="frame", pointa=(0.25, 0.08), pointb=(0.95, 0.08),
+                                                          interaction_event="always", fmt="%.0f", style="modern",
+                                                          title_height=0.02)
+            for i, (key, cb, rng, val, title) in enumerate(sliders):
+                y = 0.86 - 0.13 * i
+                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
+                                                          pointa=(0.76, y), pointb=(0.98, y), **style)
+            self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
+                                                              size=36, color_on="#1a9850", color_off="grey")
+        if not off_screen:
+            pl.add_key_event("space", self.toggle_play)
+            pl.add_key_event("Right", lambda: self.step_frame(1))
+            pl.add_key_event("Left", lambda: self.step_frame(-1))
+
     def _open_window(self, fps: float, title: str) -> None:
         """Open the interactive window (blocks until it is closed), calling ``tick`` at ``fps`` frames per second."""
         self.plotter.add_timer_event(max_steps=2**31 - 1, duration=max(1, int(1000.0 / fps)), callback=self.tick)
@@ -326,38 +356,16 @@ class ShotViewer(PlotterWindow):
         lo, hi = ref.min(axis=0), ref.max(axis=0)
         center, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
         d = np.array([0.35, 0.15, 1.0]) / np.linalg.norm([0.35, 0.15, 1.0])
-        pl.camera.focal_point = center
-        pl.camera.position = center + 3.0 * radius * d
-        pl.camera.up = (0.0, 1.0, 0.0)
-        pl.camera.view_angle = 30.0
-        pl.reset_camera_clipping_range()
-        self._text = pl.add_text("", position="upper_left", font_size=10, color="black")
-        self._sliders = {}
-        if widgets:
-            style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
-            n = len(self.times)
-            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, n - 1), value=0, title="frame",
-                                                          pointa=(0.25, 0.08), pointb=(0.95, 0.08),
-                                                          interaction_event="always", fmt="%.0f", style="modern",
-                                                          title_height=0.02)
-            specs = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time_s, "settle time [s]"),
-                     ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),
-                     ("window", self.set_window, (self.step_s, max(2.0, self.window_s)), self.window_s, "window [s]"),
-                     ("sigma", self.set_width, (0.05, 1.0), self.width_s, "correction width [s]")]
-            for i, (key, cb, rng, val, title) in enumerate(specs):
-                y = 0.86 - 0.13 * i
-                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
-                                                          pointa=(0.76, y), pointb=(0.98, y), **style)
-            self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
-                                                              size=36, color_on="#1a9850", color_off="grey")
+        sliders = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time_s, "settle time [s]"),
+                   ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),
+                   ("window", self.set_window, (self.step_s, max(2.0, self.window_s)), self.window_s, "window [s]"),
+                   ("sigma", self.set_width, (0.05, 1.0), self.width_s, "correction width [s]")]
+        self._add_controls(center, center + 3.0 * radius * d, sliders, widgets=widgets, off_screen=off_screen)
         if not off_screen:
-            pl.add_key_event("space", self.toggle_play)
             pl.add_key_event("m", self.cycle_mode)
             pl.add_key_event("i", self.solve_ikd)
             pl.add_key_event("a", lambda: self.set_adaptive(not self.adaptive))
             pl.add_key_event("w", lambda: self.show_kinematic(not self._wire_actor.GetVisibility()))
-            pl.add_key_event("Right", lambda: self.step_frame(1))
-            pl.add_key_event("Left", lambda: self.step_frame(-1))
 
     def _constraint_markers(self, x: np.ndarray) -> list:
         """Markers of the constraints at the displayed frame (within half a step of its time)."""

@@ -282,14 +282,22 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     vertex_parts = np.concatenate(parts)
     if source is None:
         uv_corners = None if uv is None else uv[f].reshape(-1, 2)
-        return BlendshapeRig.create(x0, dx, f, names, name=name, uvs=uv_corners, part_names=part_names,
-                                    vertex_parts=vertex_parts)
+        return _rig(doc, x0, dx, f, names, name=name, uvs=uv_corners, part_names=part_names,
+                    vertex_parts=vertex_parts)
     n = int(source.max()) + 1  # merge the vertices split at UV seams back (written by save_gltf)
     neutral, deltas, vparts = np.zeros((n, 3)), np.zeros((k, n, 3)), np.zeros(n, dtype=np.int64)
     neutral[source], deltas[:, source], vparts[source] = x0, dx, vertex_parts
     uv_corners = None if uv is None else uv[f].reshape(-1, 2)
-    return BlendshapeRig.create(neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
-                                vertex_parts=vparts)
+    return _rig(doc, neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
+                vertex_parts=vparts)
+
+
+def _rig(doc: _Document, *args, **kwargs) -> BlendshapeRig:
+    """:meth:`BlendshapeRig.create`, its errors (not a surface, reordered shapes …) naming the file."""
+    try:
+        return BlendshapeRig.create(*args, **kwargs)
+    except KDInputError as e:
+        raise KDInputError(f"{doc.path}: {e}") from None
 
 
 def _primitive_name(doc: _Document, prim, index: int) -> str:

@@ -8,6 +8,7 @@ second); face lines only for the file whose topology is needed.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +17,8 @@ import numpy as np
 from ..errors import KDInputError, check_finite
 from .atomic import atomic_path
 
-__all__ = ["ObjMesh", "read_obj_mesh", "read_obj_vertices", "write_obj_mesh", "triangulate", "vertex_normals"]
+__all__ = ["ObjMesh", "read_obj_mesh", "read_obj_vertices", "read_obj_shape", "obj_face_key", "write_obj_mesh",
+           "triangulate", "vertex_normals"]
 
 
 @dataclass(frozen=True)
@@ -132,16 +134,44 @@ def _contiguous_vertices(data: bytes) -> np.ndarray | None:
 def read_obj_vertices(path, *, scale: float = 1.0) -> np.ndarray:
     """Only the vertices (V, 3) [file units × ``scale``] of an OBJ, in file order (fast: faces are not parsed)."""
     p, data = _read(path)
+    return _vertices(p, data) * scale
+
+
+def _vertices(p: Path, data: bytes) -> np.ndarray:
     fast = _contiguous_vertices(data)
     if fast is not None:
         check_finite(fast, f"{p} vertices")
-        return fast * scale
+        return fast
     lines = [line for line in data.split(b"\n") if line[:2] == b"v " or line[:2] == b"v\t"]
     if not lines:
         raise KDInputError(f"{p}: no vertices ('v' lines) found")
-    v = _numbers(lines, 2, 3, p, "vertex", data) * scale
+    v = _numbers(lines, 2, 3, p, "vertex", data)
     check_finite(v, f"{p} vertices")
     return v
+
+
+_FACE_LINE = re.compile(rb"^[ \t]*f[ \t][^\n]*", re.M)
+_CORNER_EXTRA = re.compile(rb"/[^ \t\r\n]*")  # the /vt/vn part of a corner
+_SPACE = re.compile(rb"[ \t\r]+")
+
+
+def obj_face_key(data: bytes) -> bytes | None:
+    """The vertex indices of an OBJ's face lines as one normalised byte string (texture and normal indices, spacing
+    and comments between faces dropped), or None when the file has no faces: two files with equal keys have the
+    same polygons over the same vertex indices. A fast comparison of topologies (regular expressions, no parse);
+    unequal keys can still be one topology written differently (negative indices), which a parse settles."""
+    lines = _FACE_LINE.findall(data)
+    if not lines:
+        return None
+    text = _CORNER_EXTRA.sub(b"", b"\n".join(lines))
+    return _SPACE.sub(b" ", text).replace(b" \n", b"\n").strip()
+
+
+def read_obj_shape(path, *, scale: float = 1.0) -> tuple[np.ndarray, bytes | None]:
+    """The vertices (V, 3) [file units × ``scale``] of an OBJ in file order and its :func:`obj_face_key` (None
+    without faces), from one read of the file: what a blend-shape file of an OBJ folder rig needs."""
+    p, data = _read(path)
+    return _vertices(p, data) * scale, obj_face_key(data)
 
 
 def read_obj_mesh(path, *, scale: float = 1.0) -> ObjMesh:

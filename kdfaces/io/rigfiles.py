@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from ..rig.blendshapes import BlendshapeRig
+from ..rig.blendshapes import STRETCH_FACTOR, BlendshapeRig, reordered_shapes, surface_problem
 from ..rig.skeleton import Skeleton
 from .atomic import atomic_path
-from .obj import read_obj_mesh, read_obj_vertices, write_obj_mesh
+from .obj import obj_face_key, read_obj_mesh, read_obj_shape, write_obj_mesh
 
 __all__ = [
     "DEFAULT_RIG_PATH", "UNITS", "RigUnitsWarning", "unit_scale", "load_default_rig", "load_rig", "load_npz",
@@ -132,43 +132,83 @@ def _rescaled(rig: BlendshapeRig, unit_m: float) -> BlendshapeRig:
 
 
 def load_npz(path) -> BlendshapeRig:
-    """Load a rig written by :func:`save_npz` (or ``scripts/build_makehuman_head.py``); lengths in metres."""
+    """Load a rig written by :func:`save_npz` (or ``scripts/build_makehuman_head.py``); lengths in metres.
+
+    Only plain arrays are read (``allow_pickle=False``): a field holding pickled Python objects is refused, since
+    unpickling a file runs code from it.
+    """
     p = _require_file(path)
     try:
         d = np.load(p, allow_pickle=False)
     except Exception as e:  # noqa: BLE001 - any unreadable file is one error
         raise KDInputError(f"{p}: not a readable npz rig ({e})") from None
+    if not isinstance(d, np.lib.npyio.NpzFile):
+        raise KDInputError(f"{p}: expected an npz rig (a zip of named arrays), got a single .npy array")
     with d:
         missing = {"neutral", "deltas", "faces", "shape_names"} - set(d.files)
         if missing:
             raise KDInputError(f"{p}: npz rig lacks field(s) {sorted(missing)}")
+
+        def field(name: str, dtype=None) -> np.ndarray:
+            try:
+                a = d[name]
+            except ValueError as e:
+                if "pickle" in str(e):
+                    raise KDInputError(f"{p}: field {name!r} holds pickled Python objects; expected a plain array "
+                                       "(numbers or strings: npz rigs are read without unpickling)") from None
+                raise KDInputError(f"{p}: field {name!r} is not a readable array ({e})") from None
+            except Exception as e:  # noqa: BLE001 - a damaged member of the zip
+                raise KDInputError(f"{p}: field {name!r} is not a readable array ({type(e).__name__}: {e})") from None
+            if dtype is None:
+                return a
+            whole = dtype is not np.int64 or a.dtype.kind != "f" or bool(np.all(np.isfinite(a) & (a == np.round(a))))
+            if a.dtype.kind not in "biuf" or not whole:
+                raise KDInputError(f"{p}: field {name!r} holds {a.dtype} values; expected "
+                                   f"{'integers' if dtype is np.int64 else 'numbers'}")
+            return a.astype(dtype, copy=False)  # (deltas: float32, as stored)
+
+        def strings(name: str) -> list[str]:
+            a = field(name)
+            if a.dtype.kind not in "US":
+                raise KDInputError(f"{p}: field {name!r} holds {a.dtype} values; expected strings")
+            return [str(s) for s in np.atleast_1d(a)]
+
         skel = None
         if "skin_weights" in d.files:
-            w = np.asarray(d["skin_weights"], dtype=np.float64)
+            w = field("skin_weights", np.float64)
             # weights are stored as float32: rows meant to sum to one are renormalised so fully skinned parts are
             # rigid
-            total = w.sum(axis=1, keepdims=True)
+            total = w.sum(axis=1, keepdims=True) if w.ndim == 2 else w
             w = np.where(np.abs(total - 1.0) < 1e-5, w / np.where(total > 0, total, 1.0), w)
-            skel = Skeleton(
-                names=tuple(str(s) for s in d["joint_names"]),
-                positions=np.asarray(d["joint_positions"], dtype=np.float64),
-                parents=np.asarray(d["joint_parents"], dtype=np.int64),
-                weights=w,
-            )
-        name = str(d["name"]) if "name" in d.files else p.stem
+            try:
+                skel = Skeleton(
+                    names=tuple(strings("joint_names")),
+                    positions=field("joint_positions", np.float64),
+                    parents=field("joint_parents", np.int64),
+                    weights=w,
+                )
+            except KeyError as e:
+                raise KDInputError(f"{p}: npz rig has skin_weights but lacks field {e}") from None
+            except KDInputError as e:
+                raise KDInputError(f"{p}: {e}") from None
+        name = str(field("name")) if "name" in d.files else p.stem
         extra = {}
         if "polygon_counts" in d.files:
-            extra["polygons"] = (d["polygon_counts"], d["polygon_corners"])
+            extra["polygons"] = (field("polygon_counts", np.int64), field("polygon_corners", np.int64))
         if "uvs" in d.files:
-            extra["uvs"] = d["uvs"]
+            extra["uvs"] = field("uvs", np.float64)
         if "part_names" in d.files:
-            extra["part_names"] = [str(s) for s in d["part_names"]]
-            extra["vertex_parts"] = d["vertex_parts"]
+            extra["part_names"] = strings("part_names")
+            extra["vertex_parts"] = field("vertex_parts", np.int64)
         if "source_unit_m" in d.files:
-            extra["source_unit_m"] = float(d["source_unit_m"])
+            unit = field("source_unit_m", np.float64)
+            if unit.size != 1:
+                raise KDInputError(f"{p}: field 'source_unit_m': expected one number (metres per file unit)")
+            extra["source_unit_m"] = float(unit.reshape(-1)[0])
+        arrays = field("neutral", np.float64), field("deltas", np.float32), field("faces", np.int64)
+        shape_names = strings("shape_names")
         try:
-            return BlendshapeRig.create(d["neutral"], d["deltas"], d["faces"], [str(s) for s in d["shape_names"]],
-                                        skeleton=skel, name=name, **extra)
+            return BlendshapeRig.create(*arrays, shape_names, skeleton=skel, name=name, **extra)
         except KDInputError as e:
             raise KDInputError(f"{p}: {e}") from None
 
@@ -219,6 +259,11 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
                     cache_dir=None) -> BlendshapeRig:
     """A folder holding ``neutral.obj`` and one OBJ per shape (file stem = shape name), same vertex order.
 
+    Shapes must share the neutral's topology: a shape file with faces must have the neutral's faces over the same
+    vertex indices, and a shape whose vertices look listed in another order (most of the neutral's edges torn apart,
+    :func:`~kdfaces.rig.blendshapes.reordered_shapes`) is refused, naming the file. The neutral must be a surface
+    (at least 3 vertices and one face, not all of zero area).
+
     Lengths are multiplied by ``scale`` (metres per file unit). The neutral's polygons, UVs and groups become the
     rig's polygons, uvs and parts. With ``cache_dir``, the parsed rig is kept there as an npz named by the hash of
     the folder's files (so an edited file is parsed again, never read stale).
@@ -240,19 +285,61 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
             return load_npz(cached)
     mesh = read_obj_mesh(neutral_path, scale=scale)
     neutral = mesh.vertices
+    neutral_key = obj_face_key(neutral_path.read_bytes())
     deltas = np.empty((len(shapes), len(neutral), 3), dtype=np.float32)
     for k, p in enumerate(shapes):
-        v = read_obj_vertices(p, scale=scale)
+        v, key = read_obj_shape(p, scale=scale)
         if v.shape != neutral.shape:
             raise KDInputError(f"{p}: {len(v)} vertices, expected {len(neutral)} as in {neutral_path.name}")
+        if key is not None and key != neutral_key:
+            _check_same_faces(p, mesh, neutral_path.name)
         deltas[k] = v - neutral
+    triangles = mesh.triangles
+    _check_surface(neutral_path, neutral, triangles)
+    for k, share in reordered_shapes(neutral, deltas, triangles)[:1]:
+        raise KDInputError(f"{shapes[k]}: {100 * share:.0f} % of the edges of {neutral_path.name} get over "
+                           f"{STRETCH_FACTOR:g}× longer "
+                           f"in it; expected the same vertices in the same order as {neutral_path.name} (this file's "
+                           "vertices look reordered, or are in another unit)")
     uvs = None if mesh.uvs is None else mesh.uvs[mesh.uv_corners]
-    rig = BlendshapeRig.create(neutral, deltas, mesh.triangles, [p.stem for p in shapes], name=d.name,
-                               polygons=(mesh.counts, mesh.corners), uvs=uvs, part_names=mesh.group_names,
-                               vertex_parts=mesh.vertex_groups(), source_unit_m=scale)
+    try:
+        rig = BlendshapeRig.create(neutral, deltas, triangles, [p.stem for p in shapes], name=d.name,
+                                   polygons=(mesh.counts, mesh.corners), uvs=uvs, part_names=mesh.group_names,
+                                   vertex_parts=mesh.vertex_groups(), source_unit_m=scale)
+    except KDInputError as e:
+        raise KDInputError(f"{d}: {e}") from None
     if cached is not None:
         save_npz(rig, cached)
     return rig
+
+
+def _check_same_faces(path: Path, neutral, neutral_name: str) -> None:
+    """Raise :class:`KDInputError` unless the OBJ at ``path`` has the polygons of ``neutral`` (an :class:`ObjMesh`)
+    over the same vertex indices (a shape of another topology would blend scrambled deltas)."""
+    mesh = read_obj_mesh(path)
+    if len(mesh.counts) != len(neutral.counts):
+        raise KDInputError(f"{path}: {len(mesh.counts)} faces, {neutral_name} has {len(neutral.counts)}; expected "
+                           f"the topology of {neutral_name} (the same faces over the same vertex order)")
+    if np.array_equal(mesh.counts, neutral.counts):
+        if np.array_equal(mesh.corners, neutral.corners):
+            return
+        k = int(np.repeat(np.arange(len(mesh.counts)), mesh.counts)[np.argmax(mesh.corners != neutral.corners)])
+    else:
+        k = int(np.argmax(mesh.counts != neutral.counts))
+
+    def face(m) -> str:
+        start = int(m.counts[:k].sum())
+        return "f " + " ".join(str(int(i) + 1) for i in m.corners[start:start + int(m.counts[k])])
+
+    raise KDInputError(f"{path}: face {k + 1} is '{face(mesh)}', in {neutral_name} '{face(neutral)}'; expected the "
+                       f"topology of {neutral_name} (the same faces over the same vertex order)")
+
+
+def _check_surface(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
+    """Raise :class:`KDInputError` naming ``path`` unless the neutral is a surface (:func:`surface_problem`)."""
+    problem = surface_problem(vertices, triangles)
+    if problem:
+        raise KDInputError(f"{path}: {problem}")
 
 
 def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
@@ -277,6 +364,7 @@ def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
 def load_makehuman(base_obj, targets_dir, *, unit_m: float = MAKEHUMAN_UNIT_M) -> BlendshapeRig:
     """A MakeHuman base OBJ plus a folder of sparse ``.target`` files (``index dx dy dz``), both in decimetres."""
     neutral, faces = read_obj(base_obj, scale=unit_m)
+    _check_surface(Path(base_obj), neutral, faces)
     tdir = Path(targets_dir)
     files = sorted(tdir.glob("*.target"))
     if not files:
@@ -301,4 +389,7 @@ def load_makehuman(base_obj, targets_dir, *, unit_m: float = MAKEHUMAN_UNIT_M) -
                                f"({len(neutral)} vertices)")
         check_finite(a[:, 1:], f"{p} offsets")
         deltas[k, idx] = a[:, 1:] * unit_m
-    return BlendshapeRig.create(neutral, deltas, faces, [p.stem for p in files], name=Path(base_obj).stem)
+    try:
+        return BlendshapeRig.create(neutral, deltas, faces, [p.stem for p in files], name=Path(base_obj).stem)
+    except KDInputError as e:
+        raise KDInputError(f"{tdir}: {e}") from None

@@ -1,0 +1,173 @@
+"""Rigs that cannot be right, and the messages around errors (issue 23), through the real command-line entry points
+(``kdfaces.cli.main``, ``kdfem.cli.main``, in process) like ``tests/test_bad_inputs.py``: a shape OBJ whose
+vertices are in another order, one whose faces differ from the neutral's, a neutral of zero-area faces or of one
+vertex, an npz with pickled object arrays; an error while a progress bar is drawn on a stream that is not a
+terminal; the door's walk speed and an absurd frame rate; two conflicting constraints of a shot file; a screenshot
+path that is not a PNG. Each ends with exit status 2, one line on stderr naming the file (or field) and what was
+expected, no traceback and no output folder."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kdfaces.cli import main as kdfaces_main
+
+REFERENCE = Path(__file__).resolve().parent / "reference" / "shot.toml"
+GOOD = REFERENCE.read_text()
+
+
+def _run(argv, capsys, fn=kdfaces_main):
+    t0 = time.perf_counter()
+    rc = fn(argv)
+    seconds = time.perf_counter() - t0
+    err = capsys.readouterr().err
+    return rc, err, seconds
+
+
+def _check(rc, err, seconds, out: Path | None, *, names: str, field: str, limit_s: float = 30):
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert rc == 2, err
+    assert len(lines) == 1, lines
+    assert "Traceback" not in err
+    assert names in lines[0], (names, lines[0])
+    assert field in lines[0], (field, lines[0])
+    if out is not None:
+        assert not out.exists() and not list(out.parent.glob(f".{out.name}.*")), "an output folder was left"
+    assert seconds < limit_s
+
+
+# ---- rigs that cannot be right -----------------------------------------------------------------------------------
+
+def _grid(n: int = 6, size_m: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """An n × n curved patch (vertices (n², 3) [m], triangles (2(n−1)², 3)), head-sized."""
+    u, v = np.meshgrid(np.linspace(0, size_m, n), np.linspace(0, size_m, n))
+    verts = np.stack([u.ravel(), v.ravel(), 2.0 * ((u - size_m / 2) ** 2 + (v - size_m / 2) ** 2).ravel()], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    return verts, np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+
+
+def _obj(path: Path, verts, faces=None, *, style: str = "plain") -> Path:
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts]
+    if faces is not None:
+        fmt = {"plain": "{}", "slashes": "{0}//{0}", "negative": None}[style]
+        for f in faces:
+            if style == "negative":
+                lines.append("f " + " ".join(str(int(i) - len(verts)) for i in f))
+            else:
+                lines.append("f " + " ".join(fmt.format(int(i) + 1) for i in f))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _smile(verts):
+    """A legitimate shape: the middle of the patch bulges by 1 cm."""
+    c = verts[:, :2].mean(axis=0)
+    r2 = ((verts[:, :2] - c) ** 2).sum(axis=1)
+    return verts + np.outer(0.01 * np.exp(-r2 / 0.002), [0, 0, 1])
+
+
+def _rig_case(tmp_path: Path, case: str) -> tuple[Path, str, str]:
+    """A broken rig of kind ``case``: (its path, the file the message must name, the text it must contain)."""
+    verts, faces = _grid()
+    folder = tmp_path / "obj"
+    folder.mkdir()
+    perm = np.random.default_rng(3).permutation(len(verts))
+    if case == "obj-reordered":  # the same head, listed in another vertex order, no faces: deltas would be scrambled
+        _obj(folder / "neutral.obj", verts, faces)
+        _obj(folder / "jawOpen.obj", _smile(verts)[perm])
+        return folder, "jawOpen.obj", "expected the same vertices in the same order as neutral.obj"
+    if case == "obj-reordered-faces":  # the same mesh exported with another vertex order, its faces renumbered
+        inverse = np.argsort(perm)
+        _obj(folder / "neutral.obj", verts, faces)
+        _obj(folder / "jawOpen.obj", _smile(verts)[perm], inverse[faces])
+        return folder, "jawOpen.obj", "expected the topology of neutral.obj"
+    if case == "obj-fewer-faces":
+        _obj(folder / "neutral.obj", verts, faces)
+        _obj(folder / "jawOpen.obj", _smile(verts), faces[:-2])
+        return folder, "jawOpen.obj", f"{len(faces) - 2} faces, neutral.obj has {len(faces)}"
+    if case == "obj-zero-area":  # every triangle's corners on one line
+        line = np.c_[np.linspace(0, 0.2, len(verts)), np.zeros((len(verts), 2))]
+        _obj(folder / "neutral.obj", line, faces)
+        _obj(folder / "jawOpen.obj", line)
+        return folder, "neutral.obj", f"all {len(faces)} faces have zero area"
+    if case == "obj-one-vertex":
+        _obj(folder / "neutral.obj", [[0.0, 1.6, 0.1]])
+        _obj(folder / "jawOpen.obj", [[0.0, 1.6, 0.11]])
+        return folder, "neutral.obj", "1 vertex and 0 faces; expected a surface mesh"
+    if case == "obj-no-faces":
+        _obj(folder / "neutral.obj", verts)
+        _obj(folder / "jawOpen.obj", _smile(verts))
+        return folder, "neutral.obj", "36 vertices and 0 faces; expected a surface mesh"
+    if case == "makehuman-zero-area":
+        mh = tmp_path / "mh"
+        mh.mkdir()
+        (mh / "base.obj").write_text("v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n")
+        (mh / "jaw_open.target").write_text("2 0 -0.5 0.25\n")
+        return mh, "base.obj", "its one face has zero area"
+    p = tmp_path / "rig.npz"
+    fields = dict(neutral=verts, deltas=(_smile(verts) - verts)[None], faces=faces, shape_names=np.array(["jawOpen"]))
+    if case == "npz-reordered":
+        fields["deltas"] = (_smile(verts)[perm] - verts)[None]
+        np.savez(p, **fields)
+        return p, "rig.npz", "shape 'jawOpen'"
+    if case == "npz-one-vertex":
+        np.savez(p, neutral=np.zeros((1, 3)), deltas=np.zeros((1, 1, 3)), faces=np.zeros((0, 3), dtype=np.int64),
+                 shape_names=np.array(["jawOpen"]))
+        return p, "rig.npz", "1 vertex and 0 faces; expected a surface mesh"
+    if case == "npz-zero-area":
+        np.savez(p, **{**fields, "neutral": np.zeros_like(verts)})
+        return p, "rig.npz", "have zero area"
+    if case == "npz-pickled-names":
+        np.savez(p, **{**fields, "shape_names": np.array(["jawOpen"], dtype=object)}, allow_pickle=True)
+        return p, "rig.npz", "field 'shape_names' holds pickled Python objects; expected a plain array"
+    if case == "npz-pickled-neutral":
+        np.savez(p, **{**fields, "neutral": np.array([verts, "x"], dtype=object)}, allow_pickle=True)
+        return p, "rig.npz", "field 'neutral' holds pickled Python objects"
+    if case == "npz-text-faces":
+        np.savez(p, **{**fields, "faces": faces.astype(str)})
+        return p, "rig.npz: field 'faces' holds", "values; expected integers"
+    raise AssertionError(case)
+
+
+RIG_CASES = ["obj-reordered", "obj-reordered-faces", "obj-fewer-faces", "obj-zero-area", "obj-one-vertex",
+             "obj-no-faces", "makehuman-zero-area", "npz-reordered", "npz-one-vertex", "npz-zero-area",
+             "npz-pickled-names", "npz-pickled-neutral", "npz-text-faces"]
+
+
+@pytest.mark.parametrize("case", RIG_CASES)
+def test_rig_that_cannot_be_right(tmp_path, capsys, case):
+    path, names, field = _rig_case(tmp_path, case)
+    out = tmp_path / "out"
+    _check(*_run(["export-rig", "--rig", str(path), "--out", str(out)], capsys), out, names=names, field=field)
+
+
+@pytest.mark.parametrize("style", ["plain", "slashes", "negative"])
+def test_obj_folder_whose_shapes_share_the_neutral_topology_loads(tmp_path, style):
+    """Shape files with the neutral's faces (written the same way, with normals, or with relative indices) and
+    shape files without faces are one rig."""
+    from kdfaces import load_rig
+
+    verts, faces = _grid()
+    _obj(tmp_path / "neutral.obj", verts, faces)
+    _obj(tmp_path / "jawOpen.obj", _smile(verts), faces, style=style)
+    _obj(tmp_path / "mouthClose.obj", _smile(verts) + [0, 0.002, 0])
+    rig = load_rig(tmp_path)
+    assert rig.shape_names == ("jawOpen", "mouthClose")
+    np.testing.assert_allclose(rig.deltas[0], _smile(verts) - verts, atol=1e-7)
+
+
+def test_default_rig_and_its_exports_still_load(tmp_path):
+    """The plausibility checks pass every shape of the default rig, and of its OBJ folder and glTF exports."""
+    from kdfaces import load_default_rig, load_rig, save_gltf, save_obj_folder
+    from kdfaces.rig.blendshapes import reordered_shapes
+
+    rig = load_default_rig()
+    assert reordered_shapes(rig.neutral, rig.deltas, rig.faces) == []
+    back = load_rig(save_obj_folder(rig, tmp_path / "obj"))
+    assert back.num_shapes == rig.num_shapes
+    assert load_rig(save_gltf(rig, tmp_path / "rig.gltf")).num_shapes == rig.num_shapes

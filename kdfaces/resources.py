@@ -76,17 +76,53 @@ def parse_bytes(text: str, *, where: str = "--max-memory") -> int:
 
 def progress_bar(desc: str, total: int, enabled: bool):
     """A tqdm bar on stderr for a stage of ``total`` units, shown only once the stage has run
-    :data:`PROGRESS_DELAY_S` seconds; a do-nothing stand-in when not ``enabled``. Use as a context manager and call
-    ``update(n)``."""
+    :data:`PROGRESS_DELAY_S` seconds; a do-nothing stand-in when not ``enabled``. Use as a context manager (or call
+    ``close()``) and call ``update(n)``.
+
+    Closing a bar that was drawn always ends its line (on a terminal the bar is erased, elsewhere its last state is
+    left on a line of its own), so an error printed after it, when the stage fails, starts a line of its own;
+    ``set_postfix_str`` does not draw a bar before its delay.
+    """
     if not enabled:
         return _NoBar()
     import sys
 
-    from tqdm import tqdm
-
     tty = sys.stderr.isatty()
-    return tqdm(total=int(total), desc=desc, delay=PROGRESS_DELAY_S, leave=not tty, dynamic_ncols=True,
-                mininterval=0.1 if tty else 5.0, file=sys.stderr)
+    return _bar_class()(total=int(total), desc=desc, delay=PROGRESS_DELAY_S, leave=not tty, dynamic_ncols=True,
+                        mininterval=0.1 if tty else 5.0, file=sys.stderr)
+
+
+_BAR_CLASS = []
+
+
+def _bar_class():
+    """tqdm with two fixes (made once, on first use: tqdm is imported only when a bar is wanted).
+
+    tqdm's ``close()`` skips ending the line of a bar it believes was never drawn (``last_print_t`` within the
+    delay), but ``refresh()`` — from ``set_postfix_str`` or tqdm's monitor thread — draws without updating it: the
+    bar stayed unfinished and the error after it landed on its line. The subclass records every draw and ends the
+    line of a drawn bar on close; and ``set_postfix_str`` only redraws a bar that is already shown.
+    """
+    if not _BAR_CLASS:
+        from tqdm import tqdm
+
+        class _Bar(tqdm):
+            _drawn = False
+
+            def display(self, *args, **kwargs):
+                self._drawn = True
+                return super().display(*args, **kwargs)
+
+            def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+                super().set_postfix_str(s, refresh=refresh and self._drawn)
+
+            def close(self):
+                if not getattr(self, "disable", True) and self._drawn and hasattr(self, "last_print_t"):
+                    self.last_print_t = max(self.last_print_t, self.start_t + self.delay)  # drawn: close ends it
+                super().close()
+
+        _BAR_CLASS.append(_Bar)
+    return _BAR_CLASS[0]
 
 
 class _NoBar:

@@ -8,6 +8,8 @@ expected, no traceback and no output folder."""
 
 from __future__ import annotations
 
+import io
+import sys
 import time
 from pathlib import Path
 
@@ -15,6 +17,7 @@ import numpy as np
 import pytest
 
 from kdfaces.cli import main as kdfaces_main
+from kdfem.cli import main as kdfem_main
 
 REFERENCE = Path(__file__).resolve().parent / "reference" / "shot.toml"
 GOOD = REFERENCE.read_text()
@@ -171,3 +174,51 @@ def test_default_rig_and_its_exports_still_load(tmp_path):
     back = load_rig(save_obj_folder(rig, tmp_path / "obj"))
     assert back.num_shapes == rig.num_shapes
     assert load_rig(save_gltf(rig, tmp_path / "rig.gltf")).num_shapes == rig.num_shapes
+
+
+# ---- an error while a progress bar is drawn, on a stream that is not a terminal --------------------------------
+
+def test_error_during_a_progress_bar_starts_its_own_line(tmp_path, capsys):
+    """``kdfem window`` names each finished stage on its bar; the attachment then fails. On a non-terminal stderr
+    (capsys) the error must be a line of its own, not the tail of the bar's line."""
+    import trimesh
+
+    box = tmp_path / "box.obj"
+    trimesh.creation.box(extents=(0.04, 0.04, 0.06)).export(box)
+    out = tmp_path / "out"
+    rc, err, seconds = _run(["window", str(box), "--attach-below", "-10", "--out", str(out), "--no-nonlinear",
+                             "--no-sweep"], capsys, fn=kdfem_main)
+    assert not sys.stderr.isatty()
+    error = [line for line in err.splitlines() if "error" in line]
+    assert len(error) == 1 and error[0].startswith("kdfem: error: --attach-below -10"), err
+    _check(rc, err.replace("\r", "\n"), seconds, out, names="--attach-below -10", field="no node has y ≤ -10")
+
+
+@pytest.mark.parametrize("draw", ["postfix", "refresh", "update"])
+def test_a_closed_progress_bar_ends_its_line(monkeypatch, draw):
+    """However the bar got drawn (a postfix, a refresh as tqdm's monitor thread does, an update after the delay),
+    the failing stage's bar ends its line before the error is printed; a bar never drawn prints nothing."""
+    import kdfaces.resources as resources
+
+    monkeypatch.setattr(resources, "PROGRESS_DELAY_S", 0.05)
+    stream = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", stream)
+    with pytest.raises(ValueError, match="boom"):
+        with resources.progress_bar("stage", 10, True) as bar:
+            if draw == "postfix":
+                bar.set_postfix_str("first")  # before the delay: no bar yet
+                assert stream.getvalue() == ""
+                time.sleep(0.06)
+                bar.set_postfix_str("second")
+            elif draw == "refresh":
+                bar.refresh()
+            else:
+                time.sleep(0.06)
+            bar.update(1)
+            raise ValueError("boom")
+    stream.write("kdfaces: error: boom\n")
+    text = stream.getvalue()
+    assert text.count("kdfaces: error: boom") == 1
+    assert "\nkdfaces: error: boom\n" in text or text == "kdfaces: error: boom\n", repr(text)
+    if draw == "refresh":
+        assert "stage" in text  # it was drawn, and its line ended

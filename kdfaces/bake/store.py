@@ -6,13 +6,19 @@ Layout of a store folder::
     positions/           float32 (F, N, 3) [m], chunks of (K, N, 3): one chunk per bake task
     times/               float64 (F,) frame times [s]
     chunk_keys/          uint64 (C,), one chunk per element: chunk i is complete when its element holds
-                         chunk_key(key, i), written after the chunk's positions
+                         chunk_key(key, i, lo, hi, content_digest(positions)), written after the chunk's positions
 
 ``key`` identifies what the store holds (the shot's content, the solved correction, the window, the step and the
-code that computes the frames; see :func:`kdfaces.bake.bake_shot`); a chunk's key adds its frame range. Every zarr
-chunk file is written atomically (a temporary file renamed into place), the store is created in a temporary
-sibling and renamed into place, so a store read at any moment (a killed worker, Ctrl-C) holds whole chunks and
-says which of them are complete.
+code that computes the frames; see :func:`kdfaces.bake.bake_shot`); a chunk's mark adds its frame range and a
+checksum (SHA-256) of the float32 bytes it holds. Every zarr chunk file is written atomically (a temporary file
+renamed into place), the store is created in a temporary sibling and renamed into place, so a store read at any
+moment (a killed worker, Ctrl-C) holds whole chunks and says which of them are complete.
+
+A store damaged after its chunks were marked (a chunk file lost in an interrupted copy, cut short, or replaced by
+another chunk's file) is detected: :meth:`BakeStore.complete` reads every chunk back and compares its checksum
+with the mark, a chunk that cannot be read or does not match counts as not baked (the bake recomputes it), and
+:meth:`BakeStore.iter_chunks` checks each chunk again as it hands it out. zarr reads a missing chunk file as its
+fill value (zeros), so without the checksum such a store would read as a complete take of wrong frames.
 """
 
 from __future__ import annotations
@@ -26,19 +32,27 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError, KDIOError
+from ..io.atomic import remove_stale_siblings, tagged_sibling_prefix
 
-__all__ = ["BakeStore", "chunk_key", "STORE_FORMAT"]
+__all__ = ["BakeStore", "chunk_key", "content_digest", "STORE_FORMAT"]
 
-#: Version of the store layout; a store of another format is rebuilt.
-STORE_FORMAT = 1
+#: Version of the store layout; a store of another format is rebuilt (format 2: marks hold a content checksum).
+STORE_FORMAT = 2
 _ATTR = "kdfaces_bake"
 
 
-def chunk_key(key: str, index: int, lo: int, hi: int) -> int:
-    """The completion mark of chunk ``index`` (frames ``lo``..``hi`` − 1) of a store with ``key``: 64 bits of a
-    SHA-256, never 0 (the fill value of an unwritten mark)."""
-    digest = hashlib.sha256(f"{key}:{index}:{lo}:{hi}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") or 1
+def content_digest(positions) -> str:
+    """SHA-256 (hex) of a chunk's positions as the store holds them: float32, C order, (k, N, 3)."""
+    x = np.ascontiguousarray(positions, dtype=np.float32)
+    return hashlib.sha256(x.tobytes()).hexdigest()
+
+
+def chunk_key(key: str, index: int, lo: int, hi: int, digest: str = "") -> int:
+    """The completion mark of chunk ``index`` (frames ``lo``..``hi`` − 1, content checksum ``digest`` from
+    :func:`content_digest`) of a store with ``key``: 64 bits of a SHA-256, never 0 (the fill value of an unwritten
+    mark)."""
+    h = hashlib.sha256(f"{key}:{index}:{lo}:{hi}:{digest}".encode()).digest()
+    return int.from_bytes(h[:8], "little") or 1
 
 
 class BakeStore:
@@ -72,7 +86,8 @@ class BakeStore:
             cls._check_replaceable(path)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.creating-", dir=path.parent))
+            remove_stale_siblings(path, kinds=("creating",))  # a killed create's leftovers
+            tmp = Path(tempfile.mkdtemp(prefix=tagged_sibling_prefix(path, "creating"), dir=path.parent))
         except OSError as e:
             raise KDIOError(f"{path}: cannot create the bake store ({e.strerror})") from None
         try:
@@ -157,41 +172,77 @@ class BakeStore:
         lo = index * self.chunk_frames
         return lo, min(lo + self.chunk_frames, self.frames)
 
-    def expected_key(self, index: int) -> int:
-        """The completion mark chunk ``index`` holds once it is written."""
-        return chunk_key(self.key, index, *self.chunk_range(index))
+    def expected_key(self, index: int, positions) -> int:
+        """The completion mark chunk ``index`` holds once ``positions`` (hi − lo, N, 3) are written into it."""
+        return chunk_key(self.key, index, *self.chunk_range(index), content_digest(positions))
 
-    def complete(self) -> np.ndarray:
-        """(C,) bool: which chunks are written and marked with their key."""
-        marks = np.asarray(self._group["chunk_keys"][:], dtype=np.uint64)
-        want = np.array([self.expected_key(i) for i in range(self.num_chunks)], dtype=np.uint64)
-        return marks == want
+    def marks(self) -> np.ndarray:
+        """(C,) uint64: each chunk's completion mark as stored (0: never marked, or its mark file is lost)."""
+        arr = self._group["chunk_keys"]
+        try:
+            return np.asarray(arr[:], dtype=np.uint64)
+        except Exception:  # a damaged mark file (cut short, junk): read them one by one, a damaged one reads 0
+            out = np.zeros(self.num_chunks, dtype=np.uint64)
+            for i in range(self.num_chunks):
+                try:
+                    out[i] = np.uint64(arr[i])
+                except Exception:
+                    pass
+            return out
+
+    def _verified(self, index: int, mark) -> np.ndarray | None:
+        """Chunk ``index``'s positions when they read back and match ``mark``, else None (damaged or not baked)."""
+        if int(mark) == 0:
+            return None
+        try:
+            x = self.read_chunk(index)
+        except Exception:  # a chunk file cut short or replaced by junk: the codec raises, whatever its type
+            return None
+        if x.shape != (self.chunk_range(index)[1] - self.chunk_range(index)[0], self.vertices, 3):
+            return None
+        return x if int(mark) == self.expected_key(index, x) else None
+
+    def complete(self, indices=None) -> np.ndarray:
+        """(C,) bool: which chunks are written, marked, and read back with the checksum their mark records (each
+        chunk is read once: O(store size)). ``indices``: check only these chunks (the others read False)."""
+        marks = self.marks()
+        out = np.zeros(self.num_chunks, dtype=bool)
+        for i in range(self.num_chunks) if indices is None else indices:
+            out[i] = self._verified(i, marks[i]) is not None
+        return out
 
     # --- chunks ----------------------------------------------------------------------------------------------------
     def write_chunk(self, index: int, positions) -> None:
-        """Write chunk ``index``'s positions [m], (hi − lo, N, 3), stored as float32, then its completion mark."""
+        """Write chunk ``index``'s positions [m], (hi − lo, N, 3), stored as float32, then its completion mark (with
+        the checksum of what was written)."""
         lo, hi = self.chunk_range(index)
         x = np.asarray(positions)
         if x.shape != (hi - lo, self.vertices, 3):
             raise KDInputError(f"{self.path}: chunk {index}: expected positions of shape {(hi - lo, self.vertices, 3)}"
                                f", got {x.shape}")
-        self._group["positions"][lo:hi] = x.astype(np.float32)
-        self._group["chunk_keys"][index] = np.uint64(self.expected_key(index))
+        x32 = np.ascontiguousarray(x, dtype=np.float32)
+        self._group["positions"][lo:hi] = x32
+        self._group["chunk_keys"][index] = np.uint64(self.expected_key(index, x32))
 
     def read_chunk(self, index: int) -> np.ndarray:
-        """Chunk ``index``'s positions [m], (hi − lo, N, 3), float32."""
+        """Chunk ``index``'s positions [m], (hi − lo, N, 3), float32, as stored (unchecked: see :meth:`iter_chunks`)."""
         lo, hi = self.chunk_range(index)
         return np.asarray(self._group["positions"][lo:hi])
 
     def iter_chunks(self):
-        """Every chunk's positions in frame order, one (k, N, 3) float32 array at a time (bounded memory);
-        raises :class:`KDInputError` at the first incomplete chunk."""
-        done = self.complete()
+        """Every chunk's positions in frame order, one (k, N, 3) float32 array at a time (bounded memory), each
+        checked against its mark as it is read; raises :class:`KDInputError` at the first chunk not baked, and
+        :class:`KDIOError` at one whose content does not match its mark (damaged since it was written)."""
+        marks = self.marks()
         for i in range(self.num_chunks):
-            if not done[i]:
-                lo, hi = self.chunk_range(i)
+            lo, hi = self.chunk_range(i)
+            if int(marks[i]) == 0:
                 raise KDInputError(f"{self.path}: chunk {i} (frames {lo}..{hi - 1}) is not baked yet")
-            yield self.read_chunk(i)
+            x = self._verified(i, marks[i])
+            if x is None:
+                raise KDIOError(f"{self.path}: chunk {i} (frames {lo}..{hi - 1}) is damaged (its content does not "
+                                "match its checksum); rerun the bake to recompute it")
+            yield x
 
     def read(self) -> np.ndarray:
         """Every frame's positions [m], (F, N, 3), float32 (the whole take in memory: for short takes and tests)."""

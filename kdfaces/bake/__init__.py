@@ -8,12 +8,15 @@ from .bake import (
            add_bake_parser,
            bake_shot,
            bake_summary,
+           check_scheduler_address,
            default_store_path,
            export_bake,
+           plan_bake,
 )
-from .store import BakeStore, chunk_key
+from .store import BakeStore, chunk_key, content_digest
 from .tasks import BakePayload, bake_chunk, code_fingerprint, input_fingerprint
 
 __all__ = ["bake_shot", "BakeResult", "export_bake", "bake_summary", "default_store_path", "OUTPUT_STORE_NAME",
-           "add_bake_parser", "BakeStore", "chunk_key", "BakePayload", "bake_chunk", "code_fingerprint",
+           "add_bake_parser", "check_scheduler_address", "plan_bake", "BakeStore", "chunk_key",
+           "content_digest", "BakePayload", "bake_chunk", "code_fingerprint",
            "input_fingerprint"]

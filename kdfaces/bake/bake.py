@@ -35,7 +35,7 @@ from ..resources import progress_bar, single_threaded_blas
 from .store import BakeStore
 
 __all__ = ["BakeResult", "bake_shot", "export_bake", "bake_summary", "default_store_path", "add_bake_parser",
-           "OUTPUT_STORE_NAME"]
+           "check_scheduler_address", "plan_bake", "OUTPUT_STORE_NAME"]
 
 #: The store's name inside a finished ``kdfaces bake`` output folder.
 OUTPUT_STORE_NAME = "bake.zarr"
@@ -151,14 +151,70 @@ def _positive_int(value, what: str) -> int | None:
     return int(value)
 
 
-def _connect(scheduler: str):
-    """A client of the existing Dask scheduler at ``scheduler`` (the cluster is used as it is)."""
-    from distributed import Client
+#: How long a ``--scheduler`` address may take to answer Dask's handshake before the bake gives up [s].
+SCHEDULER_TIMEOUT_S = 4.0
+_SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
 
+
+def check_scheduler_address(scheduler) -> str:
+    """``scheduler`` when it has the form of a Dask scheduler address (``tcp://host:8786``, ``tls://…``, or
+    ``host:port``), else :class:`KDInputError` naming what is wrong (an empty string, a dashboard ``http://`` link,
+    no port, a port outside 1–65535). Nothing is contacted."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    what = f"--scheduler {scheduler!r}"
+    if not isinstance(scheduler, str) or not scheduler.strip():
+        raise KDInputError(f"{what}: expected a Dask scheduler address such as tcp://host:8786")
+    addr = scheduler.strip()
+    scheme = addr.split("://", 1)[0].lower() if "://" in addr else "tcp"
+    if scheme in ("http", "https"):
+        raise KDInputError(f"{what}: that is a web (dashboard) address; give the scheduler's own address, such as "
+                           "tcp://host:8786 (the dashboard's page lists it)")
+    if scheme not in _SCHEMES:
+        raise KDInputError(f"{what}: unknown scheme {scheme!r}; expected one of {', '.join(_SCHEMES)}, such as "
+                           "tcp://host:8786")
+    if scheme != "inproc":
+        try:
+            _, loc = parse_address(addr if "://" in addr else f"tcp://{addr}")
+            host, port = parse_host_port(loc)
+        except (ValueError, TypeError):
+            host, port = None, None
+        if not host or not isinstance(port, int) or not 1 <= port <= 65535:
+            raise KDInputError(f"{what}: expected host:port with a port in 1..65535, such as tcp://host:8786")
+    return addr
+
+
+def _connect(scheduler: str):
+    """A client of the existing Dask scheduler at ``scheduler`` (the cluster is used as it is). The address is
+    checked first (:func:`check_scheduler_address`), then Dask's handshake with it must complete within
+    :data:`SCHEDULER_TIMEOUT_S`: a wrong host, a closed port or a port that speaks another protocol (a web server)
+    is one clear error within about that time, and no client is made that would wait on it at exit."""
+    import asyncio
+
+    from distributed import Client
+    from distributed.comm import connect
+
+    addr = check_scheduler_address(scheduler)
+
+    async def handshake():
+        comm = await asyncio.wait_for(connect(addr, timeout=SCHEDULER_TIMEOUT_S * 0.75), SCHEDULER_TIMEOUT_S)
+        await comm.close()
+
+    why = None
     try:
-        return Client(scheduler, timeout="20s", set_as_default=False)
+        asyncio.run(handshake())
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except TimeoutError:
+        why = f"no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s"
+    except BaseException as e:  # OSError (refused, unknown host), or a peer that sent junk (MemoryError, ValueError)
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+    if why is not None:
+        raise KDIOError(f"--scheduler {addr}: cannot connect to a Dask scheduler there ({why})")
+    try:
+        return Client(addr, timeout=f"{SCHEDULER_TIMEOUT_S}s", set_as_default=False)
     except (OSError, TimeoutError) as e:
-        raise KDIOError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there ({e})") from None
+        raise KDIOError(f"--scheduler {addr}: cannot connect to a Dask scheduler there ({e})") from None
 
 
 @contextlib.contextmanager
@@ -207,6 +263,46 @@ def _identity(x):
     return x
 
 
+#: Resident memory of one bake worker process before its first chunk (Python, numpy, Warp, Dask; measured about
+#: 0.3 GiB, see BENCHMARKS.md) [bytes]: the unit of the ``--workers`` estimate.
+WORKER_BASE_BYTES = 350 << 20
+
+
+def plan_bake(frames: int, vertices: int, chunk_frames: int, workers: int | None, *, local: bool = True,
+              available_bytes: int | None = None) -> tuple[int, int | None]:
+    """(chunk_frames, workers) for a bake of ``frames`` frames of ``vertices`` points, checked against memory before
+    anything starts: ``chunk_frames`` beyond the take is the whole take (one chunk); a task holds its chunk's
+    positions in float64 and float32 (12 bytes per coordinate); each local worker costs :data:`WORKER_BASE_BYTES`
+    plus one task. Raises :class:`KDInputError` naming ``--chunk-frames`` or ``--workers`` and the largest value that
+    fits when the plan does not fit ``available_bytes`` (default: the machine's available memory). ``workers`` None
+    with ``local``: one per core, as many as fit and have a chunk; not ``local`` (an existing scheduler): None, and
+    only the task is checked (against this machine's memory: the workers' own is not known here)."""
+    from ..resources import available_memory_bytes, format_bytes
+
+    avail = available_memory_bytes() if available_bytes is None else int(available_bytes)
+    k = min(int(chunk_frames), int(frames))
+    per_frame = 12 * 3 * int(vertices)
+    task = k * per_frame
+    if WORKER_BASE_BYTES + task > avail:
+        fit = max(0, (avail - WORKER_BASE_BYTES) // per_frame)
+        raise KDInputError(f"--chunk-frames {chunk_frames}: a task would hold {format_bytes(task)} ({k:,} frames × "
+                           f"{vertices:,} vertices) and {format_bytes(avail)} is available; give --chunk-frames "
+                           f"{max(1, fit):,} or fewer (default {defaults.BAKE_CHUNK_FRAMES})")
+    chunks = -(-int(frames) // k)
+    n = workers
+    if n is None and local:
+        return k, max(1, min(os.cpu_count() or 1, chunks, avail // (WORKER_BASE_BYTES + task)))
+    if n is not None:
+        need = n * (WORKER_BASE_BYTES + task)
+        if need > avail:
+            fit = max(1, avail // (WORKER_BASE_BYTES + task))
+            raise KDInputError(f"--workers {n}: {n:,} worker processes need about {format_bytes(need)} "
+                               f"({format_bytes(WORKER_BASE_BYTES + task)} each) and {format_bytes(avail)} is "
+                               f"available; give --workers {fit:,} or fewer")
+        n = min(n, chunks)  # a worker without a chunk would only cost start-up time
+    return k, n
+
+
 def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None = None,
               chunk_frames: int | None = None, window_s: float | None = None, max_memory_bytes: int | None = None,
               cache_dir=None, progress: bool = False, callback=None) -> BakeResult:
@@ -248,6 +344,8 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
     table = read_shot_table(path)
     text = path.read_bytes().decode("utf-8")
     parsed = parse_shot(table, path, cache_dir=cache_dir)
+    k, workers = plan_bake(len(parsed.animation.frame_times), parsed.rig.num_vertices, k, workers,
+                           local=scheduler is None)
     external = _connect(scheduler) if scheduler is not None else None  # a wrong address fails before the solve
     try:
         payload, info = _solve(parsed, path, text, table, window_s=window_s, max_memory_bytes=max_memory_bytes,
@@ -259,7 +357,7 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
                                "step_s": payload.step_s, "fps": parsed.animation.fps})
         result = BakeResult(store=st.path, shot=parsed, key=payload.key, frames=st.frames, chunks=st.num_chunks,
                             chunk_frames=k, step_s=payload.step_s, client_s=time.perf_counter() - t_start, **info)
-        done = st.complete()
+        done = st.complete()  # reads every chunk back: a chunk damaged since it was marked is recomputed
         result.skipped = int(done.sum())
         todo = [i for i in range(st.num_chunks) if not done[i]]
         if todo:  # a local cluster starts only when there is something to compute
@@ -275,9 +373,9 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
     finally:
         if external is not None:
             external.close()
-    missing = np.flatnonzero(~st.complete())
-    if len(missing):
-        raise KDIOError(f"{st.path}: chunks {missing[:5].tolist()} are not complete after the bake (was the store "
+    missing = [i for i, ok in zip(todo, st.complete(todo)[todo]) if not ok] if todo else []
+    if missing:
+        raise KDIOError(f"{st.path}: chunks {missing[:5]} are not complete after the bake (was the store "
                         "changed by another process?)")
     result.wall_s = time.perf_counter() - t_start
     return result
@@ -387,7 +485,7 @@ def export_bake(store, out, *, kinds, rig, name: str, fps: float, unit_m: float 
     from ..io.export import EXPORT_KINDS, export_chunks
 
     st = BakeStore.open(store)
-    missing = np.flatnonzero(~st.complete())
+    missing = np.flatnonzero(st.marks() == 0)  # the content of each chunk is checked as it is streamed
     if len(missing):
         raise KDInputError(f"{st.path}: {len(missing)} of {st.num_chunks} chunks are not baked; run the bake first")
     times = st.times
@@ -402,7 +500,10 @@ def export_bake(store, out, *, kinds, rig, name: str, fps: float, unit_m: float 
 def _adopt_store(src: Path, dst: Path) -> None:
     """Start the working store ``dst`` as a copy of a finished bake's store ``src`` (hard links where the file system
     allows: chunk files are replaced, never edited, so the two never affect each other)."""
-    tmp = dst.parent / f".{dst.name}.adopting-{uuid.uuid4().hex[:8]}"
+    from ..io.atomic import remove_stale_siblings, tagged_sibling_prefix
+
+    remove_stale_siblings(dst, kinds=("adopting",))
+    tmp = dst.parent / f"{tagged_sibling_prefix(dst, 'adopting')}{uuid.uuid4().hex[:8]}"
     try:
 
         def link(a, b):
@@ -451,7 +552,7 @@ def _bake_command(args) -> dict:
 def _report_kept(store: Path) -> None:
     try:
         st = BakeStore.open(store)
-        n = int(st.complete().sum())
+        n = int((st.marks() != 0).sum())
     except (KDError, OSError):
         return
     print(f"kdfaces bake: {n} of {st.num_chunks} chunks are kept in {store}; the same command resumes there",

@@ -222,3 +222,70 @@ def test_a_closed_progress_bar_ends_its_line(monkeypatch, draw):
     assert "\nkdfaces: error: boom\n" in text or text == "kdfaces: error: boom\n", repr(text)
     if draw == "refresh":
         assert "stage" in text  # it was drawn, and its line ended
+
+
+# ---- kdfem door: the walk and the work ---------------------------------------------------------------------------
+
+DOOR_CASES = [
+    ("speed-zero", ("speed_mps = 1.2", "speed_mps = 0.0"), "walk.speed_mps: 0 m/s; expected a positive speed"),
+    ("speed-backwards", ("speed_mps = 1.2", "speed_mps = -1.2"), "walk.speed_mps: -1.2 m/s; expected a positive"),
+    ("speed-slow", ("speed_mps = 1.2", "speed_mps = 0.1"),
+     "walk.speed_mps: the hat never passes under the lintel: at walk.speed_mps = 0.1 m/s"),
+    ("speed-absurd", ("speed_mps = 1.2", "speed_mps = 1000.0"),
+     "walk.speed_mps: the hat never passes under the lintel: it moves 10 m"),
+    ("fps-low", [("fps = 100", "fps = 2"), ("step_s = 0.01", "step_s = 0.05")],
+     "walk.fps: the hat is under the door in one frame only"),
+    ("fps-lower", [("fps = 100", "fps = 1"), ("step_s = 0.01", "step_s = 0.05")],
+     "walk.fps: the hat never passes under the lintel: it moves"),
+    ("clearance-interval", ("kind = \"clearance\"", "kind = \"clearance\"\nstart_s = 1.0\nend_s = 0.5"),
+     "constraints[1]: expected start_s < end_s, got [1, 0.5] s"),
+    ("door-behind", ("front_z_m = 1.32", "front_z_m = -3.0"),
+     "door.front_z_m: the hat never passes under the lintel: the door (z from -3 to -2.85 m) is behind"),
+    ("door-far", ("front_z_m = 1.32", "front_z_m = 9.0"), "door.front_z_m: the hat never passes under the lintel"),
+    ("fps-absurd", [("fps = 100", "fps = 10000"), ("step_s = 0.01", "step_s = 0.0001")],
+     "walk.fps: 10000 frames/s asks for 2.6e+04 frames × 5.68e+03 KD steps per window"),
+    ("fps-absurd-step", ("fps = 100", "fps = 1e9"), "walk.fps: 1e+09 frames/s asks for"),
+    ("end-absurd", ("end_s = 2.6", "end_s = 1e7"), "walk.end_s: 1e+07 s asks for"),
+    ("step-tiny", ("step_s = 0.01", "step_s = 1e-7"), "kd.step_s: 1e-07 s asks for"),
+]
+
+
+@pytest.mark.parametrize("case, edit, field", DOOR_CASES, ids=[c[0] for c in DOOR_CASES])
+def test_door_names_the_field_that_is_wrong(tmp_path, capsys, case, edit, field):
+    from kdfem.scenes.door import DOOR_SHOT
+
+    text = DOOR_SHOT.read_text()
+    for old, new in edit if isinstance(edit, list) else [edit]:
+        assert old in text, (case, old)
+        text = text.replace(old, new)
+    shot = tmp_path / "door.toml"
+    shot.write_text(text)
+    out = tmp_path / "out"
+    _check(*_run(["door", str(shot), "--out", str(out), "--no-movie"], capsys, fn=kdfem_main), out,
+           names="door.toml: ", field=f"door.toml: {field}", limit_s=60)
+
+
+def test_door_refuses_frames_beyond_the_memory_budget(tmp_path, capsys, monkeypatch):
+    """Within the step limit but beyond the memory budget: refused once the hat's size is known, before the arrays
+    over the frames are allocated."""
+    import kdfaces.resources
+
+    monkeypatch.setattr(kdfaces.resources, "memory_budget_bytes", lambda max_memory_bytes=None: 1 << 20)
+    out = tmp_path / "out"
+    _check(*_run(["door", "--out", str(out), "--no-movie"], capsys, fn=kdfem_main), out, names="door.toml: walk.fps",
+           field="more than the memory budget of 1 MiB; expected a lower walk.fps", limit_s=60)
+
+
+def test_door_refuses_absurd_work_before_allocating():
+    """The estimate is arithmetic on the shot's numbers: no rig is loaded, no hat built, nothing allocated."""
+    from kdfaces.errors import KDInputError
+    from kdfaces.resources import peak_rss_bytes
+    from kdfem.scenes.door import DOOR_MAX_STEPS, DoorShot, check_door_work
+
+    assert check_door_work(DoorShot()) == (261, 57)
+    assert 261 * 57 < DOOR_MAX_STEPS
+    before = peak_rss_bytes()
+    shot = DoorShot.model_validate({"walk": {"fps": 1e12}, "kd": {"step_s": 1e-12}})
+    with pytest.raises(KDInputError, match=r"^door.toml: walk.fps: 1e\+12 frames/s asks for"):
+        check_door_work(shot, where="door.toml")
+    assert peak_rss_bytes() - before < 50 << 20

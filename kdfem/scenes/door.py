@@ -32,7 +32,10 @@ Shot file (TOML; every key optional except where noted, defaults are the built-i
     [solver]      update = "secant", step_scale = 1.0, tolerance_m = 1e-5, max_iterations = 20, max_rounds = 8
     [output]      movie = true, movie_fps = 25, filmstrip_columns = 5
 
-Paths are relative to the shot file. Errors name the file and the dotted field.
+Paths are relative to the shot file. Errors name the file and the dotted field. The work is estimated before
+anything is built: frames (walk.end_s × walk.fps + 1) × the steps of one KD window (kd.window_s / kd.step_s) beyond
+:data:`DOOR_MAX_STEPS`, or arrays over the frames beyond the memory budget, refuse the shot in one line naming the
+field to change.
 """
 
 from __future__ import annotations
@@ -49,11 +52,18 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from kdfaces import defaults
 from kdfaces.errors import KDInputError
 
-__all__ = ["DOOR_SHOT", "DoorShot", "DoorScene", "load_door_shot", "walk_root_curve", "build_door_scene",
-           "run_door"]
+__all__ = ["DOOR_SHOT", "DOOR_MAX_STEPS", "DoorShot", "DoorScene", "load_door_shot", "walk_root_curve",
+           "check_door_work", "build_door_scene", "run_door"]
 
 #: The built-in door scene.
 DOOR_SHOT = Path(__file__).resolve().parent / "door.toml"
+#: The most KD steps a door shot may ask for: its frames (walk.end_s × walk.fps + 1) times the steps of one KD window
+#: (kd.window_s / kd.step_s), the work of one pass of KD states over the walk (the run makes a few). The built-in
+#: scene asks for 261 × 57 ≈ 15,000; a shot beyond the limit is refused before anything is built.
+DOOR_MAX_STEPS = 1_000_000
+#: The built-in scene's frame rate [1/s], walk length [s] and KD steps per window: which field a refused estimate
+#: blames is the one furthest above these.
+_BUILT_IN_WORK = {"walk.fps": 100.0, "walk.end_s": 2.6, "kd.step_s": 57.0}  # (kd.step_s: steps per window)
 
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -204,6 +214,7 @@ class DoorScene:
             embedded render surface; joints: θ_K(t), the joint trajectory with the walk's root translation.
         points: (V, 4) tet-corner indices and (V, 4) barycentric weights of the render surface's vertices.
         tip: the surface vertex used as the tip; window_s, step_s: KD window and step [s].
+        where: the shot file, for messages.
     """
 
     shot: DoorShot
@@ -215,6 +226,7 @@ class DoorScene:
     tip: int
     window_s: float
     step_s: float
+    where: str = "door shot"
 
     def surface(self, X: np.ndarray) -> np.ndarray:
         """Render-surface points (..., V, 3) [m] of node positions (..., N, 3)."""
@@ -262,37 +274,119 @@ def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
     return HatSystem(model, embedding=emb, threads=2), f, (mesh.tets[emb.tet], emb.weights)
 
 
-def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None) -> DoorScene:
-    """The rig, the hat's KD system and the walking joint trajectory of a door shot."""
+def check_door_work(shot: DoorShot, *, where: str = "door shot", max_steps: int = DOOR_MAX_STEPS) -> tuple[int, int]:
+    """(frames, KD steps per window) of a door shot, refused with one :class:`KDInputError` naming ``where`` and the
+    field to change when frames × steps exceed ``max_steps`` (:data:`DOOR_MAX_STEPS`) or the walk cannot go
+    forward. Pure arithmetic on the shot's numbers: nothing is built or allocated."""
+    w, kd = shot.walk, shot.kd
+    if not w.speed_mps > 0:
+        raise KDInputError(f"{where}: walk.speed_mps: {w.speed_mps:g} m/s; expected a positive speed (the walk goes "
+                           "forward, +z, through the door)")
+    frames = float(np.floor(w.end_s * w.fps + 1e-9)) + 1.0  # floats: an absurd fps must not overflow
+    steps = float(np.ceil(kd.window_s / kd.step_s - 1e-9))
+    if frames * steps > max_steps:
+        ratios = {"walk.fps": w.fps / _BUILT_IN_WORK["walk.fps"], "walk.end_s": w.end_s / _BUILT_IN_WORK["walk.end_s"],
+                  "kd.step_s": steps / _BUILT_IN_WORK["kd.step_s"]}
+        blame = max(ratios, key=ratios.get)
+        value = {"walk.fps": f"{w.fps:g} frames/s", "walk.end_s": f"{w.end_s:g} s",
+                 "kd.step_s": f"{kd.step_s:g} s"}[blame]
+        change = {"walk.fps": "a lower walk.fps (the built-in scene: 100)",
+                  "walk.end_s": "a shorter walk.end_s (the built-in scene: 2.6 s)",
+                  "kd.step_s": "a longer kd.step_s or a shorter kd.window_s (the built-in scene: 0.01 s, 0.568 s)",
+                  }[blame]
+        raise KDInputError(f"{where}: {blame}: {value} asks for {frames:.3g} frames × {steps:.3g} KD steps per "
+                           f"window = {frames * steps:.3g} steps, more than the limit of {max_steps:,}; expected "
+                           f"{change}")
+    return int(frames), int(steps)
+
+
+def _check_memory(shot: DoorShot, frames: int, nodes: int, surface: int, where: str) -> None:
+    """Refuse a shot whose arrays over its frames would not fit the memory budget (before they are allocated): the
+    pass's KD states before and after IKD and their surface points (T × (3 N + 4 V) doubles, a few copies), and the
+    movie's frames at most as many again."""
+    from kdfaces.resources import format_bytes, memory_budget_bytes
+
+    movie_frames = min(frames, int(shot.walk.end_s * shot.output.movie_fps) + 1)
+    need = 8 * 3 * (frames + movie_frames) * (3 * nodes + 4 * surface) * 2
+    budget = memory_budget_bytes()
+    if need > budget:
+        raise KDInputError(f"{where}: walk.fps: {shot.walk.fps:g} frames/s over walk.end_s = {shot.walk.end_s:g} s is "
+                           f"{frames:,} frames of a {nodes}-node hat, about {format_bytes(need)} of states, more than "
+                           f"the memory budget of {format_bytes(budget)}; expected a lower walk.fps or a shorter "
+                           "walk.end_s")
+
+
+def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None, where: str = "door shot"
+                     ) -> DoorScene:
+    """The rig, the hat's KD system and the walking joint trajectory of a door shot.
+
+    The work (:func:`check_door_work`) is checked first, and the memory the run's arrays over every frame will take
+    once the hat is built, before any of them is allocated; errors name ``where`` (the shot file) and the field."""
     from kdfaces.io.rigfiles import load_rig
     from kdfaces.motion.joints import JointTrajectory, SkeletonAnimation
 
-    src = shot.rig.source
-    rig = load_rig(src if src == "default" else base / src)
-    if rig.skeleton is None or "head" not in rig.skeleton.names:
-        raise KDInputError(f"rig.source: {src!r} has no head joint to wear the hat")
+    frames, _ = check_door_work(shot, where=where)
     w = shot.walk
     if shot.kd.step_s > 1.0 / w.fps + 1e-12 or abs(round(1.0 / (w.fps * shot.kd.step_s)) * shot.kd.step_s * w.fps
                                                    - 1.0) > 1e-6:
-        raise KDInputError(f"kd.step_s: {shot.kd.step_s} s must divide the frame interval 1/{w.fps:g} s")
+        raise KDInputError(f"{where}: kd.step_s: {shot.kd.step_s} s must divide the frame interval 1/{w.fps:g} s")
+    src = shot.rig.source
+    rig = load_rig(src if src == "default" else base / src)
+    if rig.skeleton is None or "head" not in rig.skeleton.names:
+        raise KDInputError(f"{where}: rig.source: {src!r} has no head joint to wear the hat")
     root = walk_root_curve(speed_mps=w.speed_mps, accelerate_s=w.accelerate_s, bob_m=w.bob_m, step_hz=w.step_hz,
                            end_s=w.end_s)
     joints = JointTrajectory(rig.skeleton, SkeletonAnimation(root=root), start_s=0.0, end_s=w.end_s, fps=w.fps)
     system, faces, points = _hat_system(shot, rig, base, cache_dir)
+    _check_memory(shot, len(joints.frame_times), system.model.mesh.num_nodes, len(points[0]), where)
     rest_surface = np.einsum("vkd,vk->vd", system.rest_equilibrium[points[0]], points[1])
     return DoorScene(shot=shot, rig=rig, system=system, surface_faces=np.asarray(faces), joints=joints,
                      points=points, tip=int(np.argmax(rest_surface[:, 1])), window_s=shot.kd.window_s,
-                     step_s=shot.kd.step_s)
+                     step_s=shot.kd.step_s, where=where)
 
 
-def _pass_interval(scene: DoorScene) -> tuple[float, float]:
-    """[first, last] frame [s] at which any render-surface point of the rigidly carried hat is inside the door."""
+def _pass_interval(scene: DoorScene, chunk: int = 64) -> tuple[float, float]:
+    """[first, last] frame [s] at which any render-surface point of the rigidly carried hat is inside the door (at
+    least two frames).
+
+    Frames are observed ``chunk`` at a time (memory stays independent of the frame count). A hat that is never
+    inside gets one error naming the field that keeps it out: a walk too slow or too short, a door behind the
+    start, or frames so far apart that the hat jumps over the door between two of them."""
     t = scene.joints.frame_times
-    P = scene.surface(scene.system.observe_kinematic(scene.joints, t))
-    inside = scene.in_door(P).any(axis=1)
+    inside = np.zeros(len(t), dtype=bool)
+    zlo, zhi = np.empty(len(t)), np.empty(len(t))
+    for s in range(0, len(t), chunk):  # chunks of frames
+        P = scene.surface(scene.system.observe_kinematic(scene.joints, t[s:s + chunk]))
+        inside[s:s + chunk] = scene.in_door(P).any(axis=1)
+        zlo[s:s + chunk], zhi[s:s + chunk] = P[..., 2].min(axis=1), P[..., 2].max(axis=1)
     if not inside.any():
-        raise KDInputError("door: the hat never passes under the lintel (check door.front_z_m and walk.end_s)")
+        shot, where = scene.shot, scene.where
+        d, w = shot.door, shot.walk
+        front, back = d.front_z_m, d.front_z_m + d.depth_m
+        never = f"{where}: {{}}: the hat never passes under the lintel: "
+        if zlo[0] > back:
+            raise KDInputError(never.format("door.front_z_m") + f"the door (z from {front:g} to {back:g} m) is behind "
+                               f"the hat, which starts at z = {zlo[0]:.3f} m; expected a door ahead of the walk (+z)")
+        if zhi.max() < front:
+            moving_s = max(w.end_s - 0.5 * min(w.accelerate_s, w.end_s), 1e-9)
+            need = (front - zhi[0]) / moving_s
+            off = {"walk.speed_mps": 1.2 / w.speed_mps, "walk.end_s": 2.6 / w.end_s, "door.front_z_m": front / 1.32}
+            raise KDInputError(never.format(max(off, key=off.get)) + f"at walk.speed_mps = {w.speed_mps:g} m/s it gets "
+                               f"to z = {zhi.max():.3f} m by walk.end_s = {w.end_s:g} s, short of the door at "
+                               f"door.front_z_m = {front:g} m; expected a faster walk (about {need:.2g} m/s or more), "
+                               "a longer walk.end_s or a nearer door")
+        jump = float(np.diff(zlo).max()) if len(t) > 1 else float("inf")
+        blame = "walk.speed_mps" if w.speed_mps / 1.2 > 100.0 / w.fps else "walk.fps"  # vs the built-in scene
+        raise KDInputError(never.format(blame) + f"it moves {jump:.3g} m from one frame to the next (walk.speed_mps = "
+                           f"{w.speed_mps:g} m/s at walk.fps = {w.fps:g}), past the door (door.depth_m = "
+                           f"{d.depth_m:g} m) without a frame under it; expected a lower walk.speed_mps or a higher "
+                           "walk.fps")
     k = np.flatnonzero(inside)
+    if len(k) < 2:
+        w = scene.shot.walk
+        raise KDInputError(f"{scene.where}: walk.fps: the hat is under the door in one frame only (t = {t[k[0]]:g} s "
+                           f"at walk.fps = {w.fps:g}, walk.speed_mps = {w.speed_mps:g} m/s); expected a pass of at "
+                           "least two frames: a higher walk.fps or a lower walk.speed_mps")
     return float(t[k[0]]), float(t[k[-1]])
 
 
@@ -328,10 +422,13 @@ def _constraints(scene: DoorScene, pass_s, kd_pass):
     n = scene.system.model.mesh.num_nodes
     out, t_i = [], None
     for k, c in enumerate(shot.constraints):
-        where = f"constraints[{k}]"
+        where = f"{scene.where}: constraints[{k}]"
         if c.kind == "clearance":
             start = pass_s[0] if c.start_s is None else c.start_s
             end = pass_s[1] if c.end_s is None else c.end_s
+            if end <= start:
+                raise KDInputError(f"{where}: expected start_s < end_s, got [{start:g}, {end:g}] s (the pass under the "
+                                   f"door is [{pass_s[0]:g}, {pass_s[1]:g}] s)")
             out.append(clearance_constraint([0, 1, 0], lintel, start_s=start, end_s=end, margin_m=c.margin_m,
                                             slab_axis=[0, 0, 1], slab_m=(shot.door.front_z_m, shot.door.front_z_m
                                                                          + shot.door.depth_m), points=scene.points,
@@ -383,7 +480,8 @@ def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie
 
     out = Path(out)
     parsed, base = load_door_shot(shot)
-    scene = build_door_scene(parsed, base, cache_dir=cache_dir if cache_dir is not None else out / ".cache")
+    scene = build_door_scene(parsed, base, cache_dir=cache_dir if cache_dir is not None else out / ".cache",
+                             where=str(DOOR_SHOT if shot is None else shot))
     system, joints, h, window = scene.system, scene.joints, scene.step_s, scene.window_s
     lintel = parsed.door.lintel_y_m
     pass_s = _pass_interval(scene)

@@ -289,3 +289,48 @@ def test_door_refuses_absurd_work_before_allocating():
     with pytest.raises(KDInputError, match=r"^door.toml: walk.fps: 1e\+12 frames/s asks for"):
         check_door_work(shot, where="door.toml")
     assert peak_rss_bytes() - before < 50 << 20
+
+
+# ---- two constraints that contradict each other --------------------------------------------------------------------
+
+CONFLICT_CASES = [
+    ("pose-pose", """
+[[constraints]]
+time_s = 0.8
+kind = "pose"
+target = { head_deg = [0, 0, -10] }
+width_s = 0.2
+""", "constraints[0] and constraints[1]: ", "have conflicting targets on"),
+    ("pose-subset", """
+[[constraints]]
+time_s = 0.8
+kind = "subset"
+group = "jaw"
+target = { weights = { jawOpen = 1.0 } }
+width_s = 0.2
+""", "constraints[0] and constraints[1]: ", "shared vertices (up to"),
+    ("pose-end-effector", """
+[[constraints]]
+time_s = 0.8
+kind = "end_effector"
+group = "jaw"
+target = { point_m = [0, 0, 0.5] }
+width_s = 0.2
+""", "constraints[0] and constraints[1]: ", "the pose puts the end effector"),
+    ("different-widths", """
+[[constraints]]
+time_s = 0.8
+kind = "subset"
+group = "jaw"
+width_s = 0.3
+""", "constraints[0] and constraints[1]: ", "different curve shapes or widths"),
+]
+
+
+@pytest.mark.parametrize("case, extra, fields, field", CONFLICT_CASES, ids=[c[0] for c in CONFLICT_CASES])
+def test_conflicting_constraints_name_the_shot_file_and_both_fields(tmp_path, capsys, case, extra, fields, field):
+    shot = tmp_path / "shot.toml"
+    text = GOOD.replace("[solver]", extra.lstrip() + "\n[solver]")
+    shot.write_text(text)
+    out = tmp_path / "out"
+    _check(*_run(["run", str(shot), "--out", str(out)], capsys), out, names=f"shot.toml: {fields}", field=field)

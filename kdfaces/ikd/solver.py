@@ -148,10 +148,13 @@ class IKDResult:
         return self.step_scale
 
 
-def build_correction(constraints: list[Constraint], state_shape) -> tuple[Correction, list[int]]:
+def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None
+                     ) -> tuple[Correction, list[int]]:
     """Slots for the constraints (one per time and kind; constraints at one time share it) and each one's slot.
 
-    Raises :class:`KDInputError` for constraints at the same time with different bells or conflicting targets.
+    Raises :class:`KDInputError` for constraints at the same time with different bells or conflicting targets,
+    naming both as ``constraints[i]`` (their :attr:`~Constraint.index`, else their position in the list) after
+    ``where`` (e.g. the shot file) when given.
     """
     keys: dict[tuple[float, str], list[int]] = {}
     for i, c in enumerate(constraints):
@@ -162,34 +165,45 @@ def build_correction(constraints: list[Constraint], state_shape) -> tuple[Correc
         for i in members[1:]:
             c = constraints[i]
             if c.basis != first.basis:
-                raise KDInputError(f"constraints {first.name} and {c.name} share one correction curve but ask for "
-                                   "different curve shapes or widths")
-            _check_conflict(first, c)
-            for j in members[1:]:
-                if j < i:
-                    _check_conflict(constraints[j], c)
+                raise KDInputError(f"{_pair(constraints, members[0], i, where)} share one correction curve but ask "
+                                   "for different curve shapes or widths; expected the same curve and width_s for "
+                                   "constraints at one time")
+            for j in members[:members.index(i)]:
+                _check_conflict(constraints, j, i, where)
             slot_of[i] = a
         slot_of[members[0]] = a
         slots.append(Slot(first.time_s, first.slot_kind, first.basis))
     return Correction(slots, state_shape), slot_of
 
 
-def _check_conflict(a: Constraint, b: Constraint) -> None:
+def _pair(constraints: list[Constraint], i: int, j: int, where: str | None) -> str:
+    """``where: constraints[i] and constraints[j]: <name> and <name>``: two constraints as a shot file's fields
+    (their :attr:`~Constraint.index`, else their position in the list) and as their unique names."""
+    a, b = constraints[i], constraints[j]
+    ka, kb = (a.index if a.index >= 0 else i), (b.index if b.index >= 0 else j)
+    return f"{where + ': ' if where else ''}constraints[{ka}] and constraints[{kb}]: {a.name} and {b.name}"
+
+
+def _check_conflict(constraints: list[Constraint], i: int, j: int, where: str | None) -> None:
+    a, b = constraints[i], constraints[j]
     if a.kind == "plane" or b.kind == "plane":
         return  # an inequality or a one-dimensional target: it cannot contradict a point target by itself
     if a.kind == "end_effector" or b.kind == "end_effector":
         ee, other = (a, b) if a.kind == "end_effector" else (b, a)
         if other.kind in ("pose", "subset") and np.isin(ee.indices, other.indices).all():
             pos = dict(zip(other.indices.tolist(), other.target))
-            p = ee.weights @ np.array([pos[i] for i in ee.indices.tolist()])
+            p = ee.weights @ np.array([pos[v] for v in ee.indices.tolist()])
             if np.linalg.norm(p - ee.target) > 1e-9:
-                raise KDInputError(f"constraints {a.name} and {b.name} have conflicting targets: the pose puts the "
-                                   f"end effector {np.linalg.norm(p - ee.target):.3g} m from its target")
+                raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets: the pose puts the "
+                                   f"end effector {np.linalg.norm(p - ee.target):.3g} m from its target; expected "
+                                   "targets that agree, or the constraints at different times")
         return
     shared, ia, ib = np.intersect1d(a.indices, b.indices, return_indices=True)
     if len(shared) and np.abs(a.target[ia] - b.target[ib]).max() > 1e-9:
-        raise KDInputError(f"constraints {a.name} and {b.name} have conflicting targets on {len(shared)} shared "
-                           "vertices")
+        gap = float(np.linalg.norm(a.target[ia] - b.target[ib], axis=1).max())
+        raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets on {len(shared)} shared "
+                           f"vertices (up to {gap:.3g} {a.unit} apart); expected one target per vertex at one time "
+                           "(drop one, or move one to another time_s)")
 
 
 class _KD:

@@ -167,7 +167,7 @@ class Shot:
         traj = self.trajectory if trajectory is None else trajectory
         out = [self._constraint(t, i, traj) for i, t in enumerate(self.constraint_tables)]
         if out:
-            build_correction(out, (self.rig.num_vertices, 3))  # same-time conflicts are errors now, not mid-solve
+            build_correction(out, (self.rig.num_vertices, 3), where=str(self.path))  # conflicts: errors now
         return out
 
     def solver_options(self) -> dict:

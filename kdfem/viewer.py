@@ -20,7 +20,7 @@ from kdfaces import defaults
 from kdfaces.errors import KDInputError
 from kdfaces.kd import simulate_kd, window_steps
 from kdfaces.viz.figures import SKIN
-from kdfaces.viz.viewer import PlotterWindow
+from kdfaces.viz.viewer import PlotterWindow, check_screenshot_path
 
 __all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
 
@@ -218,7 +218,10 @@ class HatViewer(PlotterWindow):
 def view_hat(*, rig="default", screenshot=None, frame: int = 0, reduced: bool = True, window_s=None,
              youngs_pa=None, size=(960, 720), cache_dir=None) -> dict:
     """Open the hat viewer, or with ``screenshot`` render ``frame`` off-screen to a PNG. Returns a small summary
-    (frame, time, full/reduced, ms per KD state)."""
+    (frame, time, full/reduced, ms per KD state); ``screenshot`` must be a ``.png`` path (checked first, see
+    :func:`kdfaces.viz.viewer.check_screenshot_path`)."""
+    if screenshot is not None:
+        check_screenshot_path(screenshot)
     viewer = HatViewer(rig=rig, off_screen=screenshot is not None, size=size, window_s=window_s, reduced=reduced,
                        youngs_pa=youngs_pa, cache_dir=cache_dir)
     try:
@@ -241,6 +244,8 @@ def view_hat(*, rig="default", screenshot=None, frame: int = 0, reduced: bool = 
 def _view_command(args) -> dict:
     if args.screenshot is None and args.frame != 0:
         raise KDInputError("--frame: only meaningful with --screenshot FILE")
+    if args.screenshot is not None:
+        check_screenshot_path(args.screenshot)
     return view_hat(rig=args.rig, screenshot=args.screenshot, frame=args.frame, reduced=not args.full,
                     window_s=args.window, youngs_pa=None if args.youngs_kpa is None else 1e3 * args.youngs_kpa,
                     size=(args.width, args.height))

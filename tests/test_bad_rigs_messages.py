@@ -334,3 +334,36 @@ def test_conflicting_constraints_name_the_shot_file_and_both_fields(tmp_path, ca
     shot.write_text(text)
     out = tmp_path / "out"
     _check(*_run(["run", str(shot), "--out", str(out)], capsys), out, names=f"shot.toml: {fields}", field=field)
+
+
+# ---- a screenshot path that is not a PNG ---------------------------------------------------------------------------
+
+SCREENSHOT_CASES = [
+    ("frame.txt", "expected a .png file name (screenshots are PNG images), got a '.txt' name"),
+    ("frame", "expected a .png file name (screenshots are PNG images), got a name without a suffix"),
+    ("frame.PNG.jpg", "got a '.jpg' name"),
+    ("folder.png", "is a folder; expected a .png file name"),
+    ("missing/frame.png", "not found; expected a .png file in an existing folder"),
+]
+
+
+@pytest.mark.parametrize("command", ["kdfaces", "kdfem"])
+@pytest.mark.parametrize("name, field", SCREENSHOT_CASES, ids=[c[0] for c in SCREENSHOT_CASES])
+def test_a_screenshot_that_is_not_a_png_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch, command,
+                                                                         name, field):
+    import kdfaces.shots.shotfile
+    import kdfem.viewer
+
+    def never(*args, **kwargs):
+        raise AssertionError("the shot or the hat was loaded before the screenshot path was checked")
+
+    monkeypatch.setattr(kdfaces.shots.shotfile, "load_shot", never)
+    monkeypatch.setattr(kdfem.viewer, "HatViewer", never)
+    (tmp_path / "folder.png").mkdir()
+    target = tmp_path / name
+    if command == "kdfaces":
+        argv, fn = ["view", str(REFERENCE), "--screenshot", str(target)], kdfaces_main
+    else:
+        argv, fn = ["view", "--screenshot", str(target)], kdfem_main
+    _check(*_run(argv, capsys, fn=fn), None, names=f"--screenshot {target}", field=field)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.png"]  # nothing written

@@ -30,7 +30,8 @@ from ..kd import simulate_kd, window_steps
 from .figures import SKIN
 from .markers import constraint_markers
 
-__all__ = ["MODES", "ShotViewer", "PlotterWindow", "view_shot", "add_view_parser", "with_width"]
+__all__ = ["MODES", "ShotViewer", "PlotterWindow", "view_shot", "add_view_parser", "with_width",
+           "check_screenshot_path"]
 
 MODES = ("kinematic", "kd", "ikd")
 _MODE_NAMES = {"kinematic": "kinematic", "kd": "KD", "ikd": "IKD"}
@@ -429,14 +430,32 @@ class ShotViewer(PlotterWindow):
         self.system.close()
 
 
+def check_screenshot_path(path, *, where: str = "--screenshot") -> Path:
+    """``path`` as a screenshot file, checked before anything runs: a ``.png`` name (the viewer writes PNG bytes,
+    so another suffix would mislabel them), not a folder, in a folder that exists. Raises :class:`KDInputError`
+    naming ``where`` and the path."""
+    p = Path(path)
+    if p.suffix.lower() != ".png":
+        got = f"a {p.suffix!r} name" if p.suffix else "a name without a suffix"
+        raise KDInputError(f"{where} {p}: expected a .png file name (screenshots are PNG images), got {got}")
+    if p.is_dir():
+        raise KDInputError(f"{where} {p}: is a folder; expected a .png file name")
+    if not p.parent.is_dir():
+        raise KDInputError(f"{where} {p}: folder {p.parent} not found; expected a .png file in an existing folder")
+    return p
+
+
 def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
               threads: int = 2) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
+    ``screenshot`` must be a ``.png`` path (:func:`check_screenshot_path`, checked before the shot is read).
     """
     from ..shots.shotfile import load_shot
 
+    if screenshot is not None:
+        check_screenshot_path(screenshot)
     shot = load_shot(path)
     n = len(shot.animation.frame_times)
     if not 0 <= int(frame) < n:
@@ -464,6 +483,8 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
 def _view_command(args) -> dict:
     if args.screenshot is None and args.frame != 0:
         raise KDInputError("--frame: only meaningful with --screenshot FILE")
+    if args.screenshot is not None:
+        check_screenshot_path(args.screenshot)
     return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
                      size=(args.width, args.height), window_s=args.window, threads=args.threads)
 

@@ -89,6 +89,9 @@ _HANDLING = threading.Event()
 #: While the main thread is importing a module, an interrupt is re-sent after this many seconds instead of raised.
 REDELIVER_S = 0.02
 _IMPORT_MACHINERY = ("<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>")
+#: Python code that VTK's pipeline calls back into (a filter written in Python): VTK catches an exception raised
+#: there, prints it as a multi-line error and carries on, so an interrupt is deferred out of it too.
+_VTK_CALLBACKS = ("vtkmodules/util/vtkAlgorithm.py", "pyvista/plotting/utilities/algorithms.py")
 
 
 def _on_signal(signum, frame):
@@ -98,7 +101,8 @@ def _on_signal(signum, frame):
     initialisation (VTK's modules import their dependencies through a Python loader while their C initialiser
     runs), which does not expect an exception there and crashes the interpreter. So while any frame of the main
     thread is in the import machinery, the interrupt is only recorded, and the signal is sent again shortly; it is
-    raised once the import has finished (imports end, so the retries are bounded)."""
+    raised once the import has finished (imports end, so the retries are bounded). The same holds inside a Python
+    filter that VTK's pipeline calls (VTK would print the interrupt as a page of pipeline errors)."""
     _INTERRUPTED.set()
     if _importing(frame):
         timer = threading.Timer(REDELIVER_S, _resend, (signum,))
@@ -109,9 +113,11 @@ def _on_signal(signum, frame):
 
 
 def _importing(frame) -> bool:
-    """True when ``frame`` or a caller of it runs in Python's import machinery (a module is being imported)."""
+    """True when ``frame`` or a caller of it runs in Python's import machinery (a module is being imported), or in
+    a Python filter called from VTK's pipeline."""
     while frame is not None:
-        if frame.f_code.co_filename in _IMPORT_MACHINERY:
+        name = frame.f_code.co_filename
+        if name in _IMPORT_MACHINERY or name.replace("\\", "/").endswith(_VTK_CALLBACKS):
             return True
         frame = frame.f_back
     return False
@@ -198,8 +204,10 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
     except MemoryError:
         if folder is not None:
             folder.abandon()
-        print(f"{prog}: error: out of memory (peak {format_bytes(peak_memory_bytes())}); give a smaller budget with "
-              "--max-memory or a shorter window", file=sys.stderr)
+        hint = ("a smaller --chunk-frames or --max-memory, or fewer --workers" if getattr(args, "command", "") ==
+                "bake" else "a smaller budget with --max-memory or a shorter window")
+        print(f"{prog}: error: out of memory (peak {format_bytes(peak_memory_bytes())}); give {hint}",
+              file=sys.stderr)
         return 2
     except BaseException:
         if folder is not None:
@@ -226,9 +234,11 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
 
 def _demo(args) -> dict:
     from .defaults import user_cache_dir
+    from .errors import check_count
     from .io.rigfiles import load_rig
     from .shots.demo import run_demo
 
+    check_count(args.offset_grid, "--offset-grid", minimum=0)
     rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
     return run_demo(args.out, rig=rig, threads=args.threads, exports=args.export,
                     export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True,

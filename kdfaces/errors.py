@@ -10,7 +10,8 @@ on stderr and exit status 2.
 
 from __future__ import annotations
 
-__all__ = ["KDError", "KDInputError", "KDNumericalError", "SimulationBlowUpError", "KDIOError", "check_finite"]
+__all__ = ["KDError", "KDInputError", "KDNumericalError", "SimulationBlowUpError", "KDIOError", "check_finite",
+           "check_count"]
 
 
 class KDError(Exception):
@@ -42,3 +43,16 @@ def check_finite(array, what: str) -> None:
         bad = np.argwhere(~np.isfinite(a))[0]
         where = tuple(int(i) for i in bad)
         raise KDInputError(f"{what}: expected finite numbers, found {a[where]} at index {where}")
+
+
+def check_count(value, what: str, *, minimum: int = 1) -> int:
+    """``value`` as an int when it is a whole number ≥ ``minimum`` (a count: threads, modes, a stride), else
+    :class:`KDInputError` naming ``what``. A bool, a fraction, NaN or a string is refused, never rounded."""
+    import numbers
+
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not ok and isinstance(value, numbers.Real) and not isinstance(value, bool):
+        ok = float(value).is_integer()
+    if not ok or int(value) < minimum:
+        raise KDInputError(f"{what}: expected a whole number ≥ {minimum}, got {value!r}")
+    return int(value)

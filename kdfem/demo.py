@@ -9,7 +9,7 @@ import numpy as np
 
 from kdfaces import defaults
 from kdfaces.deprecation import renamed_kwargs
-from kdfaces.errors import KDInputError
+from kdfaces.errors import check_count
 
 __all__ = ["run_hat_demo", "SWEEP_WINDOWS_S"]
 
@@ -58,8 +58,7 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     from .geometry.tetmesh import tet_quality
     from .render import error_plot, hat_filmstrip, reduced_error_plot
 
-    if frame_stride < 1 or threads < 1:
-        raise KDInputError("frame_stride and threads: expected positive integers")
+    frame_stride, threads = check_count(frame_stride, "frame_stride"), check_count(threads, "threads")
     out = Path(out)
     rig = load_rig(rig)
     anim = demo_animation()

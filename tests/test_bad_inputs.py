@@ -319,3 +319,25 @@ def test_unwritable_output_is_reported_before_any_computation(tmp_path, capsys):
 
 def test_corpus_is_large_enough():
     assert len(SHOT_CASES) + len(CAPTURE_CASES) + len(RIG_CASES) + len(MESH_CASES) + 2 >= 60
+
+
+DEMO_SHOT = Path(__file__).resolve().parents[1] / "kdfaces" / "shots" / "demo.toml"
+# (entry point, argv, text of the one line): counts, factors and budgets that parse but cannot be right
+ARG_CASES = [
+    ("kdfaces", ["demo", "--threads", "0"], "threads: expected a whole number ≥ 1, got 0"),
+    ("kdfaces", ["demo", "--threads", "-1"], "threads: expected a whole number ≥ 1, got -1"),
+    ("kdfaces", ["demo", "--offset-grid", "-5"], "--offset-grid: expected a whole number ≥ 0, got -5"),
+    ("kdfaces", ["bake", str(DEMO_SHOT), "--max-memory", "1k"], "--max-memory 1 KiB: one KD state needs"),
+    ("kdfem", ["demo", "--threads", "0"], "threads: expected a whole number ≥ 1, got 0"),
+    ("kdfem", ["window", "--modes", "0"], "modes: expected a whole number ≥ 1, got 0"),
+    ("kdfem", ["window", "--sweep-stride", "0"], "sweep_stride: expected a whole number ≥ 1, got 0"),
+    ("kdfem", ["window", "--scale", "-1"], "scale: expected a positive factor"),
+    ("kdfem", ["window", "--scale", "100"], "scale: 100.0 applies to a surface mesh file"),
+]
+
+
+@pytest.mark.parametrize("prog, argv, field", ARG_CASES, ids=[" ".join(c[1][:3]) for c in ARG_CASES])
+def test_bad_arguments(tmp_path, capsys, prog, argv, field):
+    out = tmp_path / "out"
+    fn = kdfaces_main if prog == "kdfaces" else kdfem_main
+    _check(*_run([*argv, "--out", str(out)], capsys, fn=fn), out, names=field.split(":")[0], field=field)

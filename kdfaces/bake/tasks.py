@@ -244,6 +244,10 @@ def quiet_worker_plugin():
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
             except ValueError:  # not the main thread: leave the handler as it is
                 pass
+            import logging
+
+            # a task's error reaches the client, which reports it in one line; the worker does not log it too
+            logging.getLogger("distributed.worker").setLevel(logging.CRITICAL)
 
             wp.config.quiet = True
             wp.config.log_level = wp.LOG_WARNING

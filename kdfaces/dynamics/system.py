@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from ..errors import KDInputError, SimulationBlowUpError
+from ..errors import KDInputError, SimulationBlowUpError, check_count
 from ..motion.trajectory import scan_trajectory
 from .kernels import cluster_frames, face_step, track_step
 from .model import FaceModel
@@ -228,7 +228,7 @@ class FaceSystem:
                  blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
         self.model = model
         self.device = wp.get_device(device)
-        self.threads = max(1, int(threads))
+        self.threads = check_count(threads, "threads")
         self.check_every = max(1, int(check_every))
         self.blowup_factor = float(blowup_factor)
         self.max_bake_bytes = int(max_bake_bytes)

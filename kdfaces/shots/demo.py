@@ -120,8 +120,12 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
     filmstrips, the deviation heat map at the frame of largest KD deviation (``heatmap.png``) and the movie of
     the whole shot (``movie.mp4``, kinematic | KD | IKD, GIF where MP4 cannot be written).
     """
+    from ..errors import check_count
     from ..ikd import solve_ikd
     from ..io.summary import write_summary
+
+    threads = check_count(threads, "threads")
+    offset_grid_size = check_count(offset_grid_size, "offset_grid_size")
     from ..kd import simulate_full
     from ..viz.heatmap import deviation_mm, heat_clim, heatmap_strip
     from ..viz.kd_report import kd_error_report, write_kd_report

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kdfaces.deprecation import warn_renamed
+from kdfaces.errors import check_count
 from kdfaces.kd import step_windows
 from kdfaces.motion.ik import point_jacobian
 from kdfaces.motion.joints import root_translation
@@ -52,6 +53,7 @@ class HatSystem:
     joint: str = "head"
 
     def __post_init__(self):
+        self.threads = check_count(self.threads, "threads")
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
         self._steppers: dict[float, ImplicitEuler] = {}
         self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare

@@ -118,6 +118,7 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
     Returns:
         a :class:`WindowRun`.
     """
+    from kdfaces.errors import check_count
     from kdfaces.io.rigfiles import load_default_rig
     from kdfaces.resources import progress_bar
 
@@ -126,6 +127,11 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
     from .analysis import analyse_model
     from .verify import linear_response, settle_time, verification_horizon
 
+    modes, sweep_stride = check_count(modes, "modes"), check_count(sweep_stride, "sweep_stride")
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
+        raise KDInputError(f"scale: expected a positive factor from the surface file's units to metres, got {scale!r}")
+    if surface is None and scale != 1.0:
+        raise KDInputError(f"scale: {scale!r} applies to a surface mesh file; the default hat is built in metres")
     alpha, beta, attach_distance, attach_below = rayleigh_alpha, rayleigh_beta, attach_distance_m, attach_below_m
     out = None if out is None else Path(out)
     if out is None:

@@ -178,11 +178,14 @@ def test_default_rig_and_its_exports_still_load(tmp_path):
 
 # ---- an error while a progress bar is drawn, on a stream that is not a terminal --------------------------------
 
-def test_error_during_a_progress_bar_starts_its_own_line(tmp_path, capsys):
+def test_error_during_a_progress_bar_starts_its_own_line(tmp_path, capsys, monkeypatch):
     """``kdfem window`` names each finished stage on its bar; the attachment then fails. On a non-terminal stderr
     (capsys) the error must be a line of its own, not the tail of the bar's line."""
     import trimesh
 
+    import kdfaces.resources
+
+    monkeypatch.setattr(kdfaces.resources, "PROGRESS_DELAY_S", 2.0)  # the default, whatever the environment says
     box = tmp_path / "box.obj"
     trimesh.creation.box(extents=(0.04, 0.04, 0.06)).export(box)
     out = tmp_path / "out"

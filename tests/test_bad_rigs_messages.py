@@ -164,16 +164,17 @@ def test_obj_folder_whose_shapes_share_the_neutral_topology_loads(tmp_path, styl
     np.testing.assert_allclose(rig.deltas[0], _smile(verts) - verts, atol=1e-7)
 
 
-def test_default_rig_and_its_exports_still_load(tmp_path):
-    """The plausibility checks pass every shape of the default rig, and of its OBJ folder and glTF exports."""
-    from kdfaces import load_default_rig, load_rig, save_gltf, save_obj_folder
-    from kdfaces.rig.blendshapes import reordered_shapes
+def test_default_rig_passes_the_checks_with_a_wide_margin():
+    """Every shape of the default rig passes the plausibility check, far below the limit (its OBJ folder and glTF
+    round trips are loaded in tests/test_rig_io.py and tests/test_gltf.py); a reordered copy of a shape fails it."""
+    from kdfaces import load_default_rig
+    from kdfaces.rig.blendshapes import REORDERED_FRACTION, reordered_shapes
 
     rig = load_default_rig()
     assert reordered_shapes(rig.neutral, rig.deltas, rig.faces) == []
-    back = load_rig(save_obj_folder(rig, tmp_path / "obj"))
-    assert back.num_shapes == rig.num_shapes
-    assert load_rig(save_gltf(rig, tmp_path / "rig.gltf")).num_shapes == rig.num_shapes
+    roll = np.roll(rig.neutral + rig.deltas[0], 1, axis=0) - rig.neutral  # off by one line: the mildest reorder
+    bad = reordered_shapes(rig.neutral, np.concatenate([rig.deltas[:1], roll[None]]), rig.faces)
+    assert [k for k, _ in bad] == [1] and bad[0][1] > REORDERED_FRACTION
 
 
 # ---- an error while a progress bar is drawn, on a stream that is not a terminal --------------------------------

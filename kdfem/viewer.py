@@ -20,7 +20,7 @@ from kdfaces import defaults
 from kdfaces.errors import KDInputError
 from kdfaces.kd import simulate_kd, window_steps
 from kdfaces.viz.figures import SKIN
-from kdfaces.viz.viewer import PlotterWindow, check_screenshot_path
+from kdfaces.viz.viewer import PlotterWindow, check_screenshot_path, check_window_size
 
 __all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
 
@@ -220,6 +220,9 @@ def view_hat(*, rig="default", screenshot=None, frame: int = 0, reduced: bool = 
     """Open the hat viewer, or with ``screenshot`` render ``frame`` off-screen to a PNG. Returns a small summary
     (frame, time, full/reduced, ms per KD state); ``screenshot`` must be a ``.png`` path (checked first, see
     :func:`kdfaces.viz.viewer.check_screenshot_path`)."""
+    size = check_window_size(size)
+    if youngs_pa is not None and not (isinstance(youngs_pa, int | float) and np.isfinite(youngs_pa) and youngs_pa > 0):
+        raise KDInputError(f"youngs_pa: expected a positive Young's modulus [Pa], got {youngs_pa!r}")
     if screenshot is not None:
         check_screenshot_path(screenshot)
     viewer = HatViewer(rig=rig, off_screen=screenshot is not None, size=size, window_s=window_s, reduced=reduced,

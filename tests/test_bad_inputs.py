@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kdfaces import KDInputError
 from kdfaces.cli import main as kdfaces_main
 from kdfem.cli import main as kdfem_main
 
@@ -341,3 +342,38 @@ def test_bad_arguments(tmp_path, capsys, prog, argv, field):
     out = tmp_path / "out"
     fn = kdfaces_main if prog == "kdfaces" else kdfem_main
     _check(*_run([*argv, "--out", str(out)], capsys, fn=fn), out, names=field.split(":")[0], field=field)
+
+
+ARG_CASES_VIEW = [
+    ("kdfaces", ["view", str(DEMO_SHOT), "--screenshot", "{tmp}/s.png", "--width", "0"], "--width, --height"),
+    ("kdfaces", ["view", str(DEMO_SHOT), "--screenshot", "{tmp}/s.png", "--width", "100000"], "--width, --height"),
+    ("kdfaces", ["render", str(DEMO_SHOT), "--frames", "-3", "--no-movie", "--out", "{tmp}/out"],
+     "frames: expected a whole number ≥ 1, got -3"),
+    ("kdfem", ["view", "--screenshot", "{tmp}/s.png", "--height", "-5"], "--width, --height"),
+    ("kdfem", ["view", "--screenshot", "{tmp}/s.png", "--youngs-kpa", "-3"],
+     "youngs_pa: expected a positive Young's modulus"),
+    ("kdfem", ["view", "--screenshot", "{tmp}/s.png", "--youngs-kpa", "0"], "youngs_pa"),
+]
+
+
+@pytest.mark.parametrize("prog, argv, field", ARG_CASES_VIEW, ids=[" ".join(c[1][-2:]) for c in ARG_CASES_VIEW])
+def test_bad_viewer_arguments(tmp_path, capsys, prog, argv, field):
+    fn = kdfaces_main if prog == "kdfaces" else kdfem_main
+    rc, err, seconds = _run([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys, fn=fn)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in err and field in lines[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no screenshot, no output folder
+
+
+def test_an_error_inside_a_viewer_callback_is_raised_not_printed(capsys):
+    """pyvista prints an exception raised inside a widget callback as a warning and goes on; the viewer keeps it
+    and raises it (a screenshot must never be written over a failed state)."""
+    from kdfem.viewer import HatViewer
+
+    class Broken(HatViewer):
+        def state(self):
+            raise KDInputError("state: broken on purpose")
+
+    with pytest.raises(KDInputError, match="broken on purpose"):
+        Broken(off_screen=True)
+    assert "Encountered issue in callback" not in capsys.readouterr().err

@@ -88,6 +88,7 @@ class PlotterWindow:
         """Write the current view to ``path`` (PNG), atomically."""
         from PIL import Image
 
+        self.raise_callback_error()
         self.plotter.render()
         img = np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
         with atomic_path(path, ".png") as tmp:
@@ -100,6 +101,7 @@ class PlotterWindow:
         of ``sliders`` (stacked on the right) and the play button; in a window, keys ``space`` (play) and
         ``Right``/``Left`` (frame steps)."""
         pl = self.plotter
+        self.callback_error = None
         pl.camera.focal_point = center
         pl.camera.position = position
         pl.camera.up = (0.0, 1.0, 0.0)
@@ -109,13 +111,15 @@ class PlotterWindow:
         self._sliders = {}
         if widgets:
             style = dict(title_height=0.02, fmt="%.2f", interaction_event="end", style="modern")
-            self._sliders["frame"] = pl.add_slider_widget(self.set_frame, (0, len(self.times) - 1), value=0,
+            self._sliders["frame"] = pl.add_slider_widget(self._guarded(self.set_frame), (0, len(self.times) - 1),
+                                                          value=0,
                                                           title="frame", pointa=(0.25, 0.08), pointb=(0.95, 0.08),
                                                           interaction_event="always", fmt="%.0f", style="modern",
                                                           title_height=0.02)
             for i, (key, cb, rng, val, title) in enumerate(sliders):
                 y = 0.86 - 0.13 * i
-                self._sliders[key] = pl.add_slider_widget(cb, rng, value=float(np.clip(val, *rng)), title=title,
+                self._sliders[key] = pl.add_slider_widget(self._guarded(cb), rng, value=float(np.clip(val, *rng)),
+                                                          title=title,
                                                           pointa=(0.76, y), pointb=(0.98, y), **style)
             self._play_button = pl.add_checkbox_button_widget(self.set_playing, value=False, position=(10, 10),
                                                               size=36, color_on="#1a9850", color_off="grey")
@@ -123,6 +127,28 @@ class PlotterWindow:
             pl.add_key_event("space", self.toggle_play)
             pl.add_key_event("Right", lambda: self.step_frame(1))
             pl.add_key_event("Left", lambda: self.step_frame(-1))
+        self.raise_callback_error()  # a slider calls its callback once as it is made
+
+    def _guarded(self, fn):
+        """``fn`` as a widget callback: pyvista prints an exception raised in a callback as a warning with its
+        traceback and goes on, so the error is kept instead (:attr:`callback_error`), shown in the status text, and
+        raised by :meth:`raise_callback_error` (at once while the viewer is built, before a screenshot)."""
+
+        def call(*args):
+            try:
+                return fn(*args)
+            except Exception as e:  # noqa: BLE001  (kept and raised by raise_callback_error)
+                self.callback_error = e
+                if getattr(self, "_text", None) is not None:
+                    self._text.SetText(2, f"error: {e}")
+
+        return call
+
+    def raise_callback_error(self) -> None:
+        """Raise (and clear) the error a widget callback kept, if any (see :meth:`_guarded`)."""
+        e, self.callback_error = getattr(self, "callback_error", None), None
+        if e is not None:
+            raise e
 
     def _open_window(self, fps: float, title: str) -> None:
         """Open the interactive window (blocks until it is closed), calling ``tick`` at ``fps`` frames per second."""
@@ -445,6 +471,24 @@ def check_screenshot_path(path, *, where: str = "--screenshot") -> Path:
     return p
 
 
+#: Window or screenshot sides a viewer accepts [px] (VTK aborts the process on a size it cannot allocate).
+WINDOW_SIDE_PX = (16, 8192)
+
+
+def check_window_size(size, *, where: str = "--width, --height") -> tuple[int, int]:
+    """``size`` (width, height) [px] as two ints when each is a whole number in :data:`WINDOW_SIDE_PX`, else
+    :class:`KDInputError` naming ``where``: checked before a render window exists."""
+    lo, hi = WINDOW_SIDE_PX
+    try:
+        w, h = size
+        ok = all(float(v).is_integer() and lo <= int(v) <= hi for v in (w, h))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise KDInputError(f"{where}: expected a window of whole pixels from {lo} to {hi} on each side, got {size!r}")
+    return int(w), int(h)
+
+
 def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
               threads: int = 2) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
@@ -454,6 +498,7 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
     """
     from ..shots.shotfile import load_shot
 
+    size = check_window_size(size)
     if screenshot is not None:
         check_screenshot_path(screenshot)
     shot = load_shot(path)

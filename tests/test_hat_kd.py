@@ -25,7 +25,7 @@ def setup():
     mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=0.12)
     q = tet_quality(mesh)
     assert q["min_tet_volume_m3"] > 0 and q["min_dihedral_deg"] > 1.0
-    model = FEMModel(mesh, Material(youngs=3e4), attached_nodes(mesh.nodes, rig.neutral, distance=0.02),
+    model = FEMModel(mesh, Material(youngs=3e4), attached_nodes(mesh.nodes, rig.neutral, distance_m=0.02),
                      rayleigh_alpha=1.0, rayleigh_beta=0.01)
     system = HatSystem(model, embedding=embed_surface(mesh, surf.vertices), tol=1e-9)
     return rig, KinematicTrajectory(rig, demo_animation()), system, surf
@@ -66,7 +66,7 @@ def test_bad_input_gives_clear_errors(setup):
     rig, _, _, surf = setup
     with pytest.raises(KDInputError, match="not closed"):
         tetrahedralize(surf.vertices, surf.faces[:-3])
-    with pytest.raises(KDInputError, match="no hat node"):
+    with pytest.raises(KDInputError, match="no node of the object lies within"):
         attached_nodes(surf.vertices + np.array([0.0, 5.0, 0.0]), rig.neutral)
 
 

@@ -65,7 +65,7 @@ def test_window_verb_on_a_user_stl(tmp_path):
 @pytest.mark.parametrize("case, match", [
     ("open", "not closed"),
     ("flat", "zero volume"),
-    ("unattached", "no hat node lies within"),
+    ("unattached", "no node of the object lies within"),
 ])
 def test_bad_inputs_give_one_clear_error(tmp_path, case, match):
     stl = _post(tmp_path / f"{case}.stl", drop_face=case == "open", flat=case == "flat",

@@ -29,9 +29,9 @@ SOFT_TISSUE_SHAPES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "cheekPuff
 def time_constant(settle_time, *, fraction: float = SETTLE_FRACTION) -> np.ndarray:
     """λ = t̂/n with n = −1/ln(f) (On the Beat §4.1) for settle times ``settle_time`` [s] (scalar or (N,))."""
     t = np.asarray(settle_time, dtype=np.float64)
-    check_finite(t, "settle_time")
+    check_finite(t, "settle_time_s")
     if (t <= 0).any():
-        raise KDInputError(f"settle_time: expected positive seconds, got {t.min():.6g}")
+        raise KDInputError(f"settle_time_s: expected positive seconds, got {t.min():.6g}")
     if not 0 < fraction < 1:
         raise KDInputError(f"settle fraction: expected a number in (0, 1), got {fraction}")
     n = -1.0 / np.log(fraction)
@@ -68,15 +68,21 @@ def soft_tissue_settle_map(rig, *, stiff_s: float, loose_s: float, shapes=SOFT_T
     cheeks and lips.
 
     Softness s ∈ [0, 1] is the largest displacement of each vertex over the mouth/cheek shapes ``shapes`` (those
-    the rig has), divided by its 95th percentile and clipped, then smoothed over the mesh; brow shapes are left out
-    so the forehead stays stiff. Settle time = stiff_s + (loose_s − stiff_s)·s.
+    the rig has, matched by name or ARKit alias; a rig with none of them is a :class:`KDInputError`), divided by
+    its 95th percentile and clipped, then smoothed over the mesh; brow shapes are left out so the forehead stays
+    stiff. Settle time = stiff_s + (loose_s − stiff_s)·s.
     """
     if not (stiff_s > 0 and loose_s > 0):
         raise KDInputError(f"settle_time map: expected positive seconds, got stiff {stiff_s}, loose {loose_s}")
-    names = [s for s in shapes if s in rig.shape_names]
-    if not names:
-        return np.full(rig.num_vertices, float(stiff_s))
-    idx = rig.shape_indices(names)
+    from ..rig.names import alias_key, canonical_name
+
+    have = {alias_key(canonical_name(n)): i for i, n in enumerate(rig.shape_names)}
+    idx = [have[alias_key(canonical_name(str(s)))] for s in shapes if alias_key(canonical_name(str(s))) in have]
+    if not idx:  # a map of one value would silently make the whole face stiff
+        shown = ", ".join(list(shapes)[:4]) + (", …" if len(shapes) > 4 else "")
+        raise KDInputError(f"settle_time map: rig {getattr(rig, 'name', 'rig')!r} has none of the soft-tissue shapes "
+                           f"({shown}) that mark cheeks and lips; pass shapes= with the rig's own mouth and cheek "
+                           "shape names, or give settle_time_s per vertex")
     mag = np.linalg.norm(rig.deltas[idx].astype(np.float64), axis=2).max(axis=0)
     scale = np.percentile(mag[mag > 0], 95) if (mag > 0).any() else 1.0
     soft = _smooth(np.clip(mag / scale, 0.0, 1.0), rig.faces, smoothing)

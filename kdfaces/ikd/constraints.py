@@ -201,7 +201,18 @@ class Constraint:
 
 def _indices(group, n: int, where: str) -> np.ndarray:
     """Vertex indices in the caller's order; must be distinct and in [0, n)."""
-    idx = np.arange(n) if group is None else np.asarray(group, dtype=np.int64).reshape(-1)
+    if group is None:
+        idx = np.arange(n)
+    else:
+        if isinstance(group, str) or (np.ndim(group) and np.asarray(group).dtype.kind in "USO"):
+            raise KDInputError(f"{where}: group: expected vertex indices, got the name {group!r}; a named group's "
+                               "indices come from kdfaces.rig.vertex_group(rig, name)")
+        raw = np.asarray(group)
+        if raw.dtype.kind == "f" and (not np.isfinite(raw).all() or (raw != np.round(raw)).any()):
+            raise KDInputError(f"{where}: group: expected whole-number vertex indices, got fractions")
+        if raw.dtype.kind not in "iuf" or raw.dtype.kind == "b":
+            raise KDInputError(f"{where}: group: expected vertex indices, got {raw.dtype} values")
+        idx = raw.astype(np.int64).reshape(-1)
     if len(idx) == 0 or idx.min() < 0 or idx.max() >= n or len(np.unique(idx)) != len(idx):
         raise KDInputError(f"{where}: vertex group must be non-empty distinct indices in [0, {n})")
     return idx

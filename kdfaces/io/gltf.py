@@ -295,7 +295,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
 def _rig(doc: _Document, *args, **kwargs) -> BlendshapeRig:
     """:meth:`BlendshapeRig.create`, its errors (not a surface, reordered shapes …) naming the file."""
     try:
-        return BlendshapeRig.create(*args, **kwargs)
+        return BlendshapeRig.create(*args, **kwargs, check_units=False)
     except KDInputError as e:
         raise KDInputError(f"{doc.path}: {e}") from None
 

@@ -9,13 +9,20 @@ from __future__ import annotations
 
 import hashlib
 import os
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from ..rig.blendshapes import STRETCH_FACTOR, BlendshapeRig, reordered_shapes, surface_problem
+from ..rig.blendshapes import (
+    STRETCH_FACTOR,
+    UNITS,
+    BlendshapeRig,
+    RigUnitsWarning,
+    check_plausible_size,
+    reordered_shapes,
+    surface_problem,
+)
 from ..rig.skeleton import Skeleton
 from .atomic import atomic_path
 from .obj import obj_face_key, read_obj_mesh, read_obj_shape, write_obj_mesh
@@ -28,16 +35,6 @@ __all__ = [
 DEFAULT_RIG_PATH = Path(os.environ.get("KDFACES_MESHES", Path(__file__).resolve().parents[2] / "meshes")) / \
     "makehuman_head.npz"
 MAKEHUMAN_UNIT_M = 0.1  # MakeHuman OBJ and .target files are in decimetres
-#: Metres per unit of each length unit a rig file may be written in.
-UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001}
-#: A head rig (the mesh's largest extent) is expected between these sizes [m].
-PLAUSIBLE_HEAD_M = (0.05, 1.0)
-
-
-class RigUnitsWarning(UserWarning):
-    """A rig's size is implausible for a head in the stated unit (probably a unit mix-up)."""
-
-
 def unit_scale(units: str | None = None, scale: float | None = None, *, default: float = 1.0,
                where: str = "rig") -> float:
     """Metres per file unit from ``units`` (one of :data:`UNITS`) or ``scale``; ``default`` when neither is given."""
@@ -52,20 +49,6 @@ def unit_scale(units: str | None = None, scale: float | None = None, *, default:
             raise KDInputError(f"{where}.scale: expected a positive number of metres per file unit, got {scale!r}")
         return float(scale)
     return float(default)
-
-
-def check_plausible_size(rig: BlendshapeRig, unit_m: float, where: str) -> None:
-    """Warn (:class:`RigUnitsWarning`) when the rig's extent is not head-sized in metres, naming the likely unit."""
-    extent = float((rig.neutral.max(axis=0) - rig.neutral.min(axis=0)).max())
-    lo, hi = PLAUSIBLE_HEAD_M
-    if lo <= extent <= hi:
-        return
-    file_extent = extent / unit_m
-    likely = [u for u, m in UNITS.items() if lo <= file_extent * m <= hi]
-    hint = f"; the numbers fit a head in {likely[0]} (units = \"{likely[0]}\")" if likely else ""
-    stated = next((u for u, m in UNITS.items() if abs(m - unit_m) < 1e-12), f"{unit_m:g} m per unit")
-    warnings.warn(f"{where}: read as {stated}, the rig is {extent:.3g} m across, not a head's "
-                  f"{lo:g}–{hi:g} m{hint}", RigUnitsWarning, stacklevel=3)
 
 
 def _require_file(path) -> Path:
@@ -128,7 +111,7 @@ def _rescaled(rig: BlendshapeRig, unit_m: float) -> BlendshapeRig:
     return BlendshapeRig.create(rig.neutral * unit_m, rig.deltas.astype(np.float64) * unit_m, rig.faces,
                                 rig.shape_names, skeleton=skel, name=rig.name, polygons=rig.polygons, uvs=rig.uvs,
                                 part_names=rig.part_names, vertex_parts=rig.vertex_parts,
-                                source_unit_m=rig.source_unit_m * unit_m)
+                                source_unit_m=rig.source_unit_m * unit_m, check_units=False)
 
 
 def load_npz(path) -> BlendshapeRig:
@@ -208,7 +191,7 @@ def load_npz(path) -> BlendshapeRig:
         arrays = field("neutral", np.float64), field("deltas", np.float32), field("faces", np.int64)
         shape_names = strings("shape_names")
         try:
-            return BlendshapeRig.create(*arrays, shape_names, skeleton=skel, name=name, **extra)
+            return BlendshapeRig.create(*arrays, shape_names, skeleton=skel, name=name, **extra, check_units=False)
         except KDInputError as e:
             raise KDInputError(f"{p}: {e}") from None
 
@@ -305,7 +288,7 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
     try:
         rig = BlendshapeRig.create(neutral, deltas, triangles, [p.stem for p in shapes], name=d.name,
                                    polygons=(mesh.counts, mesh.corners), uvs=uvs, part_names=mesh.group_names,
-                                   vertex_parts=mesh.vertex_groups(), source_unit_m=scale)
+                                   vertex_parts=mesh.vertex_groups(), source_unit_m=scale, check_units=False)
     except KDInputError as e:
         raise KDInputError(f"{d}: {e}") from None
     if cached is not None:
@@ -390,6 +373,7 @@ def load_makehuman(base_obj, targets_dir, *, unit_m: float = MAKEHUMAN_UNIT_M) -
         check_finite(a[:, 1:], f"{p} offsets")
         deltas[k, idx] = a[:, 1:] * unit_m
     try:
-        return BlendshapeRig.create(neutral, deltas, faces, [p.stem for p in files], name=Path(base_obj).stem)
+        return BlendshapeRig.create(neutral, deltas, faces, [p.stem for p in files], name=Path(base_obj).stem,
+                                    check_units=False)
     except KDInputError as e:
         raise KDInputError(f"{tdir}: {e}") from None

@@ -22,6 +22,10 @@ __all__ = ["JointDrive", "SkeletonAnimation", "JointTrajectory", "root_translati
 _TOKENS = itertools.count()
 
 
+#: The largest joint angle a radian API accepts [rad]: beyond a full turn the numbers are almost surely degrees.
+MAX_ANGLE_RAD = 2.0 * np.pi
+
+
 @dataclass(frozen=True)
 class JointDrive:
     """One 3-channel curve (yaw, pitch, roll) [rad] driving joints with fixed shares ``{joint: fraction}``."""
@@ -33,6 +37,12 @@ class JointDrive:
         if self.curve.channels != 3:
             raise KDInputError(f"joint drive: expected a 3-channel (yaw, pitch, roll) curve, got "
                                f"{self.curve.channels} channels")
+        v = np.abs(np.asarray(self.curve.values, dtype=np.float64))
+        if (v > MAX_ANGLE_RAD).any():  # degrees typed where radians are meant (yaw 30 would be 4.8 turns)
+            k, c = np.argwhere(v > MAX_ANGLE_RAD)[0]
+            raise KDInputError(f"joint drive: {('yaw', 'pitch', 'roll')[c]} {self.curve.values[k, c]:g} at key {k} "
+                               f"is beyond ±2π; expected radians (for degrees use np.radians, "
+                               f"{self.curve.values[k, c]:g}° = {np.radians(self.curve.values[k, c]):.4g} rad)")
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ x(w) = x0 + Σ_k w_k Δ_k (delta blend shapes), then linear blend skinning by th
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,7 +15,8 @@ from ..errors import KDInputError, check_finite
 from .names import canonical_name, match_names
 from .skeleton import Skeleton
 
-__all__ = ["BlendshapeRig", "surface_problem", "reordered_shapes", "STRETCH_FACTOR", "REORDERED_FRACTION"]
+__all__ = ["BlendshapeRig", "surface_problem", "reordered_shapes", "STRETCH_FACTOR", "REORDERED_FRACTION", "UNITS",
+           "PLAUSIBLE_HEAD_M", "RigUnitsWarning", "check_plausible_size"]
 
 #: An edge of the neutral counts as torn apart in a shape when it is this many times longer there (plus a slack of
 #: 10⁻³ of the rig's diameter for edges that are nearly zero).
@@ -23,6 +25,46 @@ STRETCH_FACTOR = 3.0
 #: vertices are in another order (or another unit). Real face shapes tear at most a few in ten thousand (the default
 #: rig's eye blinks: 0.06 %); a reordered copy of the neutral tears 40–95 %.
 REORDERED_FRACTION = 0.25
+
+
+#: Metres per unit of each length unit a rig file may be written in.
+UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001}
+#: A head rig (the mesh's largest extent) is expected between these sizes [m].
+PLAUSIBLE_HEAD_M = (0.05, 1.0)
+
+
+class RigUnitsWarning(UserWarning):
+    """A rig's size is implausible for a head in the stated unit (probably a unit mix-up)."""
+
+
+def check_plausible_size(rig: BlendshapeRig, unit_m: float, where: str) -> None:
+    """Warn (:class:`RigUnitsWarning`) when the rig's extent is not head-sized in metres, naming the likely unit."""
+    extent = float((rig.neutral.max(axis=0) - rig.neutral.min(axis=0)).max())
+    lo, hi = PLAUSIBLE_HEAD_M
+    if lo <= extent <= hi:
+        return
+    file_extent = extent / unit_m
+    likely = [u for u, m in UNITS.items() if lo <= file_extent * m <= hi]
+    hint = f"; the numbers fit a head in {likely[0]} (units = \"{likely[0]}\")" if likely else ""
+    stated = next((u for u, m in UNITS.items() if abs(m - unit_m) < 1e-12), f"{unit_m:g} m per unit")
+    warnings.warn(f"{where}: read as {stated}, the rig is {extent:.3g} m across, not a head's "
+                  f"{lo:g}–{hi:g} m{hint}", RigUnitsWarning, stacklevel=4)
+
+
+
+def _index_array(values, what: str) -> np.ndarray:
+    """``values`` as int64 when every entry is a whole number (indices, counts), else :class:`KDInputError` naming
+    ``what``: float indices such as 2.7 are refused, never truncated."""
+    a = np.asarray(values)
+    if a.dtype.kind in "iub":
+        return np.ascontiguousarray(a, dtype=np.int64)
+    if a.dtype.kind == "f" and a.size and (not np.isfinite(a).all() or (a != np.round(a)).any()):
+        bad = a.reshape(-1)[np.flatnonzero(~np.isfinite(a.reshape(-1)) | (a.reshape(-1) != np.round(a.reshape(-1))))[0]]
+        raise KDInputError(f"{what}: expected whole-number indices, got {bad!r}")
+    try:
+        return np.ascontiguousarray(a, dtype=np.int64)
+    except (TypeError, ValueError):
+        raise KDInputError(f"{what}: expected whole-number indices, got dtype {a.dtype}") from None
 
 
 def surface_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
@@ -162,16 +204,23 @@ class BlendshapeRig:
 
     @classmethod
     def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig", polygons=None, uvs=None,
-               part_names=(), vertex_parts=None, source_unit_m: float = 1.0) -> BlendshapeRig:
+               part_names=(), vertex_parts=None, source_unit_m: float = 1.0, check_units: bool = True
+               ) -> BlendshapeRig:
         """Build a rig converting arrays to the dtype contract (float64 positions, float32 deltas, int64 faces).
 
-        ``neutral`` (N, 3) [m], ``deltas`` (K, N, 3) [m], ``faces`` (F, 3), ``shape_names`` K names; the optional
-        mesh attributes are described on the class.
+        ``neutral`` (N, 3) [m], ``deltas`` (K, N, 3) [m], ``faces`` (F, 3) whole-number indices (float indices
+        that are not whole numbers are refused, never truncated), ``shape_names`` K names; the optional mesh
+        attributes are described on the class. With ``check_units`` a rig whose extent does not fit a head in
+        metres gets a :class:`RigUnitsWarning` naming the likely unit (:func:`check_plausible_size`, the same check
+        :func:`kdfaces.io.load_rig` makes; loaders building a rig in file units turn it off until they convert).
         """
+        faces = _index_array(faces, f"rig {name!r} faces")
         if polygons is not None:
-            polygons = (np.ascontiguousarray(polygons[0], dtype=np.int64),
-                        np.ascontiguousarray(polygons[1], dtype=np.int64))
-        return cls(
+            polygons = (_index_array(polygons[0], f"rig {name!r} polygon counts"),
+                        _index_array(polygons[1], f"rig {name!r} polygon corners"))
+        if vertex_parts is not None:
+            vertex_parts = _index_array(vertex_parts, f"rig {name!r} vertex_parts")
+        rig = cls(
             neutral=np.ascontiguousarray(neutral, dtype=np.float64),
             deltas=np.ascontiguousarray(deltas, dtype=np.float32),
             faces=np.ascontiguousarray(faces, dtype=np.int64),
@@ -184,6 +233,9 @@ class BlendshapeRig:
             vertex_parts=None if vertex_parts is None else np.ascontiguousarray(vertex_parts, dtype=np.int64),
             source_unit_m=float(source_unit_m),
         )
+        if check_units:
+            check_plausible_size(rig, 1.0, f"rig {name!r}")
+        return rig
 
     @property
     def polygon_counts(self) -> np.ndarray:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError, check_finite
 from kdfaces.motion.joints import joint_frames
 
@@ -76,17 +77,20 @@ def rigid_velocity_field(G: np.ndarray, dG: np.ndarray):
     return A, dG[:, :3, 3] - np.einsum("bij,bj->bi", A, G[:, :3, 3])
 
 
-def attached_nodes(nodes: np.ndarray, head_points: np.ndarray, *, distance: float = 0.02) -> np.ndarray:
-    """Indices of hat nodes (N, 3) [m] within ``distance`` [m] of the head surface points (V, 3) [m]."""
+@renamed_kwargs(distance="distance_m")
+def attached_nodes(nodes: np.ndarray, head_points: np.ndarray, *, distance_m: float = 0.02) -> np.ndarray:
+    """Indices of an object's nodes (N, 3) [m] within ``distance_m`` [m] of the head surface points (V, 3) [m]."""
     from scipy.spatial import cKDTree
 
-    if not (np.isfinite(distance) and distance > 0):
-        raise KDInputError(f"attach distance: expected a positive length in metres, got {distance}")
+    if not (np.isfinite(distance_m) and distance_m > 0):
+        raise KDInputError(f"attach_distance_m: expected a positive length in metres, got {distance_m}")
     d, _ = cKDTree(head_points).query(nodes)
-    idx = np.flatnonzero(d <= distance)
+    idx = np.flatnonzero(d <= distance_m)
     if len(idx) == 0:
-        raise KDInputError(f"attachment: no hat node lies within {distance} m of the head surface "
-                           f"(closest {d.min():.4f} m); move the hat or raise the attach distance")
+        raise KDInputError(f"attachment: no node of the object lies within attach_distance_m = {distance_m:g} m of "
+                           f"the head surface (the closest is {d.min():.4f} m away); place the object on the head "
+                           "or raise attach_distance_m")
     if len(idx) == len(nodes):
-        raise KDInputError("attachment: every hat node is attached; nothing is left to simulate")
+        raise KDInputError(f"attachment: every node of the object lies within attach_distance_m = {distance_m:g} m "
+                           "of the head surface; nothing is left to simulate (lower attach_distance_m)")
     return idx

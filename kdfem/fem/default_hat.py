@@ -64,7 +64,7 @@ def default_hat_system(rig, *, edge_length_fac: float = defaults.HAT_EDGE_LENGTH
     """
     surf, mesh, dt = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
                                  params=params, cache_dir=cache_dir)
-    att = attached_nodes(mesh.nodes, rig.neutral, distance=attach_distance_m)
+    att = attached_nodes(mesh.nodes, rig.neutral, distance_m=attach_distance_m)
     model = FEMModel(mesh, material or DEFAULT_MATERIAL, att, rayleigh_alpha=rayleigh_alpha,
                      rayleigh_beta=rayleigh_beta, device=device)
     embedding = embed_surface(mesh, surf.vertices)

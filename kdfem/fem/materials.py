@@ -17,9 +17,18 @@ import numpy as np
 
 from kdfaces.errors import KDInputError
 
-__all__ = ["Material", "MODELS"]
+__all__ = ["Material", "MODELS", "MaterialUnitsWarning", "PLAUSIBLE_YOUNGS_PA"]
 
 MODELS = {"corotated": 0, "neohookean": 1}
+
+
+#: Young's moduli a deformable object plausibly has [Pa]: below is a unit mix-up (kPa typed as Pa), above a rigid
+#: solid that needs no FEM.
+PLAUSIBLE_YOUNGS_PA = (100.0, 1.0e9)
+
+
+class MaterialUnitsWarning(UserWarning):
+    """A material constant is implausible in SI units (probably typed in another unit)."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +50,14 @@ class Material:
     def __post_init__(self):
         if not (np.isfinite(self.youngs) and self.youngs > 0):
             raise KDInputError(f"material youngs: expected a positive modulus in Pa, got {self.youngs}")
+        lo, hi = PLAUSIBLE_YOUNGS_PA
+        if not lo <= self.youngs <= hi:  # kPa or MPa typed where Pa are meant
+            import warnings
+
+            unit = "kPa (×1e3)" if self.youngs < lo else "Pa, not GPa"
+            warnings.warn(f"material youngs: {self.youngs:g} Pa is outside {lo:g}–{hi:g} Pa, soft foam to hard "
+                          f"plastic; Young's modulus is in Pa (was it meant in {unit}?)", MaterialUnitsWarning,
+                          stacklevel=3)
         if not (-1.0 < self.poisson < 0.5):
             raise KDInputError(f"material poisson: expected a ratio in (-1, 0.5), got {self.poisson}")
         if not (np.isfinite(self.density) and self.density > 0):

@@ -256,7 +256,9 @@ class HatSystem:
         return modal_adaptive_windows(self, trajectory, times, step_s=step_s, epsilon_m=epsilon_m, start_s=start_s)
 
     def surface(self, x: np.ndarray) -> np.ndarray:
-        """Render-surface positions (..., V, 3) [m] from node positions (..., N, 3) (needs ``embedding``)."""
+        """Render-surface positions (..., V, 3) [m] from node positions (..., N, 3): the embedded surface's points
+        with an ``embedding``; without one the tet mesh is its own render mesh, and ``x`` itself is returned (V = N,
+        drawn with the mesh's boundary faces)."""
         if self.embedding is None:
             return x
         return self.embedding.apply(self.model.mesh, x)

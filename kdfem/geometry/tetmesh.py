@@ -216,10 +216,9 @@ def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    if not (0 < edge_length_fac < 1):
-        raise KDInputError(f"edge_length_fac: expected a fraction in (0, 1), got {edge_length_fac}")
-    if not (0 < envelope_fac < 0.1):
-        raise KDInputError(f"envelope_fac: expected a fraction in (0, 0.1), got {envelope_fac}")
+    for name, value, hi in (("edge_length_fac", edge_length_fac, 1.0), ("envelope_fac", envelope_fac, 0.1)):
+        if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or not (0 < value < hi):
+            raise KDInputError(f"{name}: expected a fraction in (0, {hi:g}), got {value!r}")
     _check_surface(v, f, where)
     nodes, tets = _pytetwild(v, f, edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
                              optimize=optimize, where=where)

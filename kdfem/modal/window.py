@@ -61,7 +61,7 @@ def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = default
                                     cache_dir=cache_dir)
         return mesh, np.asarray(surf.vertices), np.asarray(surf.faces), "the default hat"
     if not (np.isfinite(scale) and scale > 0):
-        raise KDInputError(f"--scale: expected a positive factor (file units → metres), got {scale}")
+        raise KDInputError(f"scale: expected a positive factor (file units → metres), got {scale}")
     v, f = load_surface(surface)
     v = v * scale
     p = v[f]
@@ -87,7 +87,7 @@ def _attach(nodes, head, *, distance, below):
         if len(idx) == len(nodes):
             raise KDInputError(f"--attach-below {below}: every node is attached; nothing is left to simulate")
         return idx, f"the {len(idx)} nodes with y ≤ {below} m"
-    idx = attached_nodes(nodes, head, distance=distance)
+    idx = attached_nodes(nodes, head, distance_m=distance)
     return idx, f"the {len(idx)} nodes within {distance} m of the head surface, driven by the head joint"
 
 

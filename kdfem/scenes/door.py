@@ -268,7 +268,7 @@ def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
                                     coarsen=True, where="hat.surface", cache_dir=cache_dir,
                                     shipped=[SHIPPED_HAT_TETS])
     material = Material(youngs=h.youngs_pa, poisson=h.poisson, density=h.density_kg_m3)
-    att = attached_nodes(mesh.nodes, rig.neutral, distance=h.attach_distance_m)
+    att = attached_nodes(mesh.nodes, rig.neutral, distance_m=h.attach_distance_m)
     model = FEMModel(mesh, material, att, rayleigh_alpha=h.rayleigh_alpha, rayleigh_beta=h.rayleigh_beta)
     emb = embed_surface(mesh, v)
     return HatSystem(model, embedding=emb, threads=2), f, (mesh.tets[emb.tet], emb.weights)

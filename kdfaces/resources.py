@@ -15,8 +15,8 @@ from contextlib import contextmanager
 
 from .errors import KDInputError
 
-__all__ = ["available_memory_bytes", "memory_budget_bytes", "peak_rss_bytes", "format_bytes", "parse_bytes",
-           "progress_bar", "single_threaded_blas", "PROGRESS_DELAY_S"]
+__all__ = ["init_warp", "available_memory_bytes", "memory_budget_bytes", "peak_rss_bytes", "format_bytes",
+           "parse_bytes", "progress_bar", "single_threaded_blas", "PROGRESS_DELAY_S"]
 
 #: A stage shows a progress bar once it has run this long [s] (short stages stay quiet); the environment variable
 #: ``KDFACES_PROGRESS_DELAY_S`` overrides it (0 shows every bar).
@@ -24,6 +24,30 @@ PROGRESS_DELAY_S = float(os.environ.get("KDFACES_PROGRESS_DELAY_S", 2.0))
 
 #: The share of the available memory a computation may plan to use by default.
 BUDGET_FRACTION = 0.5
+
+
+def _warp_initialised(wp) -> bool:
+    for name in ("warp._src.context", "warp.context"):
+        try:
+            import importlib
+
+            return importlib.import_module(name).runtime is not None
+        except (ImportError, AttributeError):
+            continue
+    return False
+
+
+def init_warp() -> None:
+    """Initialise Warp the first time the toolkit needs it, quietly: its start-up banner and kernel-module load
+    lines would go to stdout and corrupt a script's own output (e.g. JSON). Warp's log level is set to warnings
+    for the process, which is what a quiet start means to Warp. A user who initialised Warp first (``wp.init()``
+    with their own settings) keeps them: nothing is changed then. Systems call this before their first array."""
+    import warp as wp
+
+    if _warp_initialised(wp):
+        return
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
 
 
 def available_memory_bytes() -> int:

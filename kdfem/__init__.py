@@ -30,6 +30,15 @@ __all__ = ["run_hat_demo", "FEMModel", "HatSystem", "Material", "default_hat_sys
 
 
 def __getattr__(name: str):
+    if name == "__version__":  # from the installed package's metadata (kdfaces and kdfem are one distribution)
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("kdfaces")
+        except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
+            value = "0+unknown"
+        globals()["__version__"] = value
+        return value
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'kdfem' has no attribute {name!r}")
@@ -39,4 +48,5 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(__all__))
+    """The public names only (``__all__`` and ``__version__``), not the module's own imports."""
+    return sorted([*__all__, "__version__"])

@@ -155,3 +155,48 @@ def test_the_attachment_message_names_the_object_and_the_argument(rig):
     nodes = np.concatenate([rig.neutral[:5], rig.neutral[:5] + [0.0, 1.0, 0.0]])
     with pytest.warns(DeprecationWarning, match="distance"):  # the old keyword still works for one release
         assert attached_nodes(nodes, rig.neutral, distance=0.05).tolist() == [0, 1, 2, 3, 4]
+
+
+QUIET_SCRIPT = """
+import kdfaces, kdfem
+from kdfaces import KinematicTrajectory, demo_animation, load_default_rig, simulate_kd
+from kdfaces.dynamics import FaceModel, FaceSystem
+from kdfem import default_hat_system
+rig = load_default_rig()
+traj = KinematicTrajectory(rig, demo_animation())
+simulate_kd(FaceSystem(FaceModel.from_rig(rig)), traj, [1.0], 0.2)
+hat, _, _ = default_hat_system(rig)
+simulate_kd(hat, traj, [1.0], 0.05, step_s=0.01)
+"""
+
+
+def test_library_calls_print_nothing_on_stdout(tmp_path):
+    """A script that builds a face and a hat system and runs a KD state of each prints nothing to stdout (Warp's
+    banner and module-load lines went there); a user who starts Warp first keeps their own settings."""
+    import subprocess
+    import sys
+
+    env_script = tmp_path / "quiet.py"
+    env_script.write_text(QUIET_SCRIPT)
+    r = subprocess.run([sys.executable, str(env_script)], capture_output=True, text=True, timeout=600,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == ""
+    user = tmp_path / "user.py"
+    user.write_text("import warp as wp\nwp.config.log_level = wp.LOG_INFO\nwp.init()\n"
+                    "from kdfaces.resources import init_warp\ninit_warp()\nprint(wp.config.log_level == wp.LOG_INFO)\n")
+    r = subprocess.run([sys.executable, str(user)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == "True", (r.stdout, r.stderr)
+
+
+def test_versions_come_from_the_package_metadata_and_dir_shows_public_names():
+    from importlib.metadata import version
+
+    import kdfaces
+    import kdfem
+
+    assert kdfaces.__version__ == kdfem.__version__ == version("kdfaces")
+    for mod in (kdfaces, kdfem):
+        names = dir(mod)
+        assert "__version__" in names and "annotations" not in names and "importlib" not in names
+        assert set(names) == set(mod.__all__) | {"__version__"}

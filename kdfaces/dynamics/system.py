@@ -24,6 +24,7 @@ import warp as wp
 
 from ..errors import KDInputError, SimulationBlowUpError, check_count
 from ..motion.trajectory import scan_trajectory
+from ..resources import init_warp
 from .kernels import cluster_frames, face_step, track_step
 from .model import FaceModel
 from .workers import Workers
@@ -226,6 +227,7 @@ class FaceSystem:
 
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
                  blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
+        init_warp()  # quietly, unless the user started Warp first
         self.model = model
         self.device = wp.get_device(device)
         self.threads = check_count(threads, "threads")

@@ -55,6 +55,9 @@ class FEMModel:
     free: np.ndarray = field(init=False)
 
     def __post_init__(self):
+        from kdfaces.resources import init_warp
+
+        init_warp()  # quietly, unless the user started Warp first
         n = self.mesh.num_nodes
         self.attached = np.unique(np.asarray(self.attached, dtype=np.int64))
         if len(self.attached) == 0 or self.attached.min() < 0 or self.attached.max() >= n:

@@ -201,6 +201,15 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
             return 130
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a full disk, a folder made read-only meanwhile: the OS's reason, in one line
+        if folder is not None:
+            folder.abandon()
+        if interrupted.is_set():
+            print(f"{prog}: interrupted; nothing was written", file=sys.stderr)
+            return 130
+        where = e.filename or getattr(args, "final_out", None) or "output"
+        print(f"{prog}: error: {where}: {e.strerror or e}; nothing was written", file=sys.stderr)
+        return 2
     except MemoryError:
         if folder is not None:
             folder.abandon()
@@ -323,6 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
     punch = sub.add_parser("punch", help="skeletal KD on MuJoCo: the relaxed punch, its IKD, On the Beat timing")
     punch.add_argument("--out", default="kd-out/punch", help="output folder (default kd-out/punch)")
     punch.add_argument("--no-movie", dest="movie", action="store_false", help="skip movie.mp4")
+    punch.add_argument("--coupling", choices=("paper", "exact"), default="paper",
+                       help="On the Beat's parent-torque coupling: paper (eq. 8-9 as printed, default) or exact "
+                            "(the joint-space inertia's in-board entries); the timing reports both")
     punch.add_argument("--json", action="store_true", help="print summary.json to stdout")
     punch.set_defaults(func=_punch)
     return ap
@@ -331,7 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _punch(args) -> dict:
     from .articulated.punch import run_punch
 
-    return run_punch(args.out, movie=args.movie)
+    return run_punch(args.out, movie=args.movie, coupling=args.coupling)
 
 
 def finish(status: int, argv) -> int:

@@ -125,3 +125,20 @@ def test_a_link_is_never_replaced(tmp_path):
     with pytest.raises(Exception, match="symbolic link"):
         check_output_folder(link)
     assert (target / "keep.txt").read_bytes() == USER_BYTES
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    import errno
+
+    import kdfaces.io.summary as summary
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp_path / "out" / "summary.json"))
+
+    monkeypatch.setattr(summary, "write_summary", full)
+    out = tmp_path / "out"
+    assert kdfaces_main(["export-rig", "--format", "obj", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "No space left on device" in lines[0] and "Traceback" not in err, lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -130,11 +130,12 @@ def test_parent_torque_compensation_is_eq_8_to_10():
 
 
 @pytest.mark.parametrize("options", [{}, {"inertia": "local", "parent_compensation": False},
-                                     {"gravity_compensation": False}])
+                                     {"gravity_compensation": False}, {"coupling": "exact"}])
 @pytest.mark.parametrize("limit_nm", [80.0, 3.0])
 def test_mujoco_track_is_the_reference_controller(options, limit_nm):
     """The engine's own loop (MuJoCo's composite moments, axes, gravity compensation and torque clamp, the PD and
-    parent-torque compensation in between) against the reference path (every term in NumPy, torques through
+    parent-torque compensation in between; with ``coupling="exact"`` its in-board entries of M from MuJoCo's
+    ``qM``) against the reference path (every term in NumPy, torques through
     qfrc_applied, one mj_step each): the punch window of 60 steps, with torque limits that never and that often
     clip. Same torques, so the angles agree to round-off: ~1e-15 rad per step, a few 1e-12 rad after the window
     (atol 1e-9 rad on a motion of 2 rad), and the same clipped hinge-steps."""

@@ -9,6 +9,12 @@ Every control step, for every hinge i of the chain (root first):
    hinges' eq. 4 torques τ_j give the subtree, projected on s_i and turned into the torque m_i (a_i·s_i) that
    carries the hinge's out-board links along (eq. 8 sums the eq. 4 torques of *all* in-board hinges; their
    compensated torques would count a grandparent's acceleration once per generation in between);
+   ``coupling`` says which torque carries hinge h along with an in-board hinge g's acceleration ä_g = τ⁽⁴⁾_g/m_g:
+   ``"paper"`` (the default) m_h (s_h·s_g), eq. 8–9 as printed (the projection of g's angular acceleration on s_h,
+   times h's own moment), or ``"exact"`` the joint-space inertia's in-board entry M_hg (the composite-rigid-body
+   off-diagonal s_h·D_h s_g + M_h s_h·((c_h − d_h) × (s_g × (c_h − d_g))), which adds the lever arm between the two
+   pivots that eq. 8–9 leave out; MuJoCo's ``qM`` in the engine's loop,
+   :meth:`ArticulatedModel.inboard_inertia` in NumPy);
 4. gravity compensation (the torque that holds the out-board composite against gravity), and torque limits
    (``|τ| ≤ τ_max`` per hinge; the number of clipped hinge-steps is counted).
 
@@ -35,10 +41,12 @@ from scipy.optimize import brentq
 from ..errors import KDInputError
 from .model import ArticulatedModel
 
-__all__ = ["TIMINGS", "INERTIAS", "time_constants", "OnTheBeat"]
+__all__ = ["TIMINGS", "INERTIAS", "COUPLINGS", "time_constants", "OnTheBeat"]
 
 TIMINGS = ("critical", "paper")
 INERTIAS = ("composite", "local")
+#: Parent-torque couplings of eq. 8–10: "paper" m_h (s_h·s_g) as printed, "exact" the joint-space inertia's M_hg.
+COUPLINGS = ("paper", "exact")
 
 
 def time_constants(fraction: float = 0.9, timing: str = "critical") -> float:
@@ -64,6 +72,8 @@ class OnTheBeat:
         timing: "critical" or "paper" (see the module docstring); fraction: f (0.9).
         damping_ratio: ζ (1 is eq. 4, critically damped).
         parent_compensation: §4.4 on or off; gravity_compensation: on or off.
+        coupling: how eq. 8–10 carry a hinge along with its in-board hinges, "paper" (m_h (s_h·s_g), as printed) or
+            "exact" (the joint-space inertia's in-board entries M_hg); see the module docstring.
         clipped: hinge-steps whose torque hit its limit so far.
     """
 
@@ -74,29 +84,18 @@ class OnTheBeat:
     damping_ratio: float = 1.0
     parent_compensation: bool = True
     gravity_compensation: bool = True
+    coupling: str = "paper"
 
     def __post_init__(self):
         if self.inertia not in INERTIAS:
             raise KDInputError(f"inertia {self.inertia!r} unknown; expected one of {INERTIAS}")
+        if self.coupling not in COUPLINGS:
+            raise KDInputError(f"coupling {self.coupling!r} unknown; expected one of {COUPLINGS}")
         if not (np.isfinite(self.damping_ratio) and self.damping_ratio > 0):
             raise KDInputError(f"damping_ratio: expected a positive number, got {self.damping_ratio}")
         self.n = time_constants(self.fraction, self.timing)
-        sk = self.model.skeleton
-        # P[h, g] = 1 when hinge g is in-board of hinge h (accelerates h's subtree, eq. 8): every hinge of every
-        # ancestor joint and the earlier hinges of h's own joint; hinges ordered root first, (yaw, pitch, roll)
-        J = self.model.num_joints
-        P = np.zeros((3 * J, 3 * J))
-        for j in range(J):
-            anc = []
-            k = sk.parents[j]
-            while k >= 0:
-                anc.append(k)
-                k = sk.parents[k]
-            for c in range(3):
-                for a in anc:
-                    P[3 * j + c, 3 * a: 3 * a + 3] = 1.0
-                P[3 * j + c, 3 * j: 3 * j + c] = 1.0
-        self._inboard = P
+        # P[h, g] = 1 when hinge g is in-board of hinge h (accelerates h's subtree, eq. 8)
+        self._inboard = self.model.inboard_hinges()
         self.clipped = 0
 
     def gains(self, q: np.ndarray, settle_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,9 +123,11 @@ class OnTheBeat:
         shape = q.shape
         axes, m, grav = self.model.terms(q, local=self.inertia == "local")
         B = shape[0]
+        inboard = self.model.inboard_inertia(q) if self.exact_coupling else None
         tau, kd = self.hinge_torques(m.reshape(B, -1), axes.reshape(B, -1, 3), q.reshape(B, -1), qd.reshape(B, -1),
                                      np.broadcast_to(target_q, shape).reshape(B, -1),
-                                     np.broadcast_to(target_qd, shape).reshape(B, -1), self.lambdas(settle_s, shape))
+                                     np.broadcast_to(target_qd, shape).reshape(B, -1), self.lambdas(settle_s, shape),
+                                     inboard=inboard)
         tau, kd = tau.reshape(shape), kd.reshape(shape)
         if self.gravity_compensation:
             tau = tau + grav
@@ -138,6 +139,12 @@ class OnTheBeat:
         # implicit damping: the engine applies −k_d·ω at the end of the step, so the explicit −k_d·ω comes out here
         return (tau + kd * qd, kd) if split_damping else tau
 
+    @property
+    def exact_coupling(self) -> bool:
+        """True when eq. 8–10 need the joint-space inertia's in-board entries (``coupling="exact"`` with parent-torque
+        compensation on)."""
+        return self.parent_compensation and self.coupling == "exact"
+
     def lambdas(self, settle_s, shape) -> np.ndarray:
         """The time constants λ = t̂/n (B, 3J) [s] of times t̂ ``settle_s`` [s] (scalar, (J, 3) or (B, J, 3)) for
         poses of ``shape`` (B, J, 3) (eq. 4)."""
@@ -146,19 +153,31 @@ class OnTheBeat:
             raise KDInputError("settle time: expected positive seconds")
         return lam
 
-    def hinge_torques(self, moments, axes, q, qd, target_q, target_qd, lam):
+    def hinge_torques(self, moments, axes, q, qd, target_q, target_qd, lam, *, inboard=None):
         """The PD torques with parent-torque compensation, before gravity compensation and limits, and the damping
         gains: (τ (B, D) [N·m], k_d (B, D) [N·m·s/rad]) for the D = 3J hinges (root first) of B poses.
 
         Args:
             moments: m (B, D) [kg·m²], composite (eq. 7) or local; axes: world hinge axes s (B, D, 3);
-            q, qd: θ, ω (B, D); target_q, target_qd: θ̂, ω̂ (B, D); lam: λ = t̂/n (B, D) [s].
+            q, qd: θ, ω (B, D); target_q, target_qd: θ̂, ω̂ (B, D); lam: λ = t̂/n (B, D) [s];
+            inboard: with ``coupling="exact"``, the joint-space inertia's in-board entries M_hg (B, D, D) [kg·m²]
+                (zero unless g is in-board of h; :meth:`ArticulatedModel.inboard_inertia`, or MuJoCo's ``qM``).
 
-        τ_h = m_h/λ²(θ̂ − θ) + 2ζ m_h/λ (ω̂ − ω) + m_h (a_h·s_h), a_h = Σ_g P[h, g] (τ⁽⁴⁾_g/m_g) s_g (eq. 4, 8–10),
-        τ⁽⁴⁾_g the eq. 4 torque of in-board hinge g (P[h, g] = 1: g is in-board of h)."""
+        ``coupling="paper"``: τ_h = m_h/λ²(θ̂ − θ) + 2ζ m_h/λ (ω̂ − ω) + m_h (a_h·s_h),
+        a_h = Σ_g P[h, g] (τ⁽⁴⁾_g/m_g) s_g (eq. 4, 8–10), τ⁽⁴⁾_g the eq. 4 torque of in-board hinge g (P[h, g] = 1:
+        g is in-board of h). ``coupling="exact"``: the eq. 9 term m_h (s_h·s_g) becomes M_hg,
+        τ_h = τ⁽⁴⁾_h + Σ_g M_hg τ⁽⁴⁾_g/m_g."""
         c = (2.0 * self.damping_ratio) / lam
         kd = c * moments
         acc = (target_q - q) / lam**2 + c * (target_qd - qd)  # τ⁽⁴⁾/m: the hinge's own angular acceleration (eq. 4)
+        if self.exact_coupling:
+            if inboard is None:
+                raise KDInputError('coupling="exact": hinge_torques needs inboard, the joint-space inertia\'s '
+                                   "in-board entries M_hg (B, D, D)")
+            # eq. 8–10 with the exact carrying torque: Σ_g M_hg ä_g over every in-board hinge g, ä_g = τ⁽⁴⁾_g/m_g the
+            # eq. 4 acceleration of g; M_hg (row h of the joint-space inertia, g in-board of h) is the torque about
+            # s_h that moves h's out-board composite along with a unit acceleration of g, lever arm included
+            return moments * acc + (inboard @ acc[..., None])[..., 0], kd
         if self.parent_compensation:
             # eq. 8–9: u_h = a_h·s_h = Σ_g P[h, g] (s_h·s_g) acc_g over every in-board hinge, with the in-board
             # hinges' eq. 4 accelerations (the world angular acceleration they give h's parent link); one product

@@ -65,6 +65,40 @@ class MuJoCoEngine:
             self._body = m.jnt_bodyid[m.dof_jntid]  # each hinge's link
             self._limits = np.tile(model.torque_limits.ravel(), self.batch)
             self._limited = np.isfinite(self._limits).any()
+            if controller.exact_coupling:
+                self._inboard_layout()
+
+    def _inboard_layout(self) -> None:
+        """Where the joint-space inertia's in-board entries M_hg (g in-board of h) lie in MuJoCo's sparse M: row h
+        (CSR, lower triangle) holds the columns of h's ancestor DOFs, then the diagonal. ``_inb_src`` indexes
+        ``data.M``, ``_inb_dst`` the flat (B, D, D) matrix that :meth:`OnTheBeat.hinge_torques` takes; the columns
+        must be exactly the controller's in-board hinges (eq. 8)."""
+        m, B, D = self.mj, self.batch, self.model.dofs
+        src, dst = [], []
+        for i in range(m.nv):
+            b, h = divmod(i, D)
+            for k in range(m.M_rowadr[i], m.M_rowadr[i] + m.M_rownnz[i] - 1):
+                g = int(m.M_colind[k]) - b * D
+                if not 0 <= g < D:
+                    raise KDInputError("MuJoCo engine: joint-space inertia couples two worlds")
+                src.append(k)
+                dst.append((b * D + h) * D + g)
+        self._inb_src, self._inb_dst = np.array(src, dtype=np.int64), np.array(dst, dtype=np.int64)
+        mask = np.zeros(B * D * D)
+        mask[self._inb_dst] = 1.0
+        if not np.array_equal(mask.reshape(B, D, D), np.broadcast_to(self.model.inboard_hinges(), (B, D, D))):
+            raise KDInputError("MuJoCo engine: the joint-space inertia's in-board entries are not the chain's "
+                               "in-board hinges")
+        self._inb = np.zeros((B, D, D))
+
+    def inboard_inertia(self) -> np.ndarray:
+        """The in-board entries M_hg (B, D, D) [kg·m²] of MuJoCo's joint-space inertia at the current position
+        stage (after ``mj_step1`` or ``mj_forward``; zero where g is not in-board of h): the coupling of
+        ``OnTheBeat(coupling="exact")``, read from ``data.M`` (the sparse ``qM``)."""
+        if getattr(self, "_inb_src", None) is None:
+            self._inboard_layout()
+        self._inb.reshape(-1)[self._inb_dst] = self.data.M[self._inb_src]
+        return self._inb
 
     def mjcf(self) -> str:
         """The MJCF text of the replicated chain."""
@@ -165,7 +199,8 @@ class MuJoCoEngine:
         joint-space inertia M from the composite-rigid-body algorithm, equal to eq. 7) and the gravity
         compensation (``qfrc_gravcomp``) in C; :meth:`OnTheBeat.hinge_torques` adds eq. 4 and the parent-torque
         compensation of eq. 8–10 (a product with the 3J × 3J in-board coupling, the only per-step work left in NumPy; a
-        pose-dependent gain and a coupling between hinges that no MuJoCo actuator expresses); the motors apply it,
+        pose-dependent gain and a coupling between hinges that no MuJoCo actuator expresses; with
+        ``coupling="exact"`` the coupling is M's in-board entries, read from ``data.M``); the motors apply it,
         MuJoCo adds the gravity compensation and clamps the sum to the torque limits, and integrates the damping
         k_d implicitly. Same torques as :meth:`OnTheBeat.torques` with ``split_damping`` and :meth:`step`."""
         ctrl = self.controller
@@ -192,10 +227,12 @@ class MuJoCoEngine:
                record_rates) -> None:
         mujoco, m, d, ctrl = self.mujoco, self.mj, self.data, self.controller
         B, D = self.batch, self.model.dofs
+        exact = ctrl.exact_coupling
         for k in range(steps):
             mujoco.mj_step1(m, d)
             moments = (self._local_moments() if local else d.M[self._diag]).reshape(B, D)
-            tau, kd = ctrl.hinge_torques(moments, axes, q, qd, tq[k], tqd[k], lam)
+            inboard = self.inboard_inertia() if exact else None
+            tau, kd = ctrl.hinge_torques(moments, axes, q, qd, tq[k], tqd[k], lam, inboard=inboard)
             motors[:] = tau
             # τ holds the damping −k_d·ω explicitly; mj_step1 already added the joints' damping at the previous
             # gains, −k_d'·ω (qfrc_damper): cancel it, and let the integrator apply −k_d·(ω_new − ω) implicitly

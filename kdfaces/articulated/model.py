@@ -13,7 +13,10 @@ The composite quantities that On the Beat's control needs (§4.2–4.3) are comp
   (D ← D + D_child + M_child([c_child − c]²ᵀ … ) written in world coordinates);
 - the moment of inertia about each hinge axis s through the joint pivot d, eq. 7:
   m = s·D s + M ‖(c − d) × s‖², or "locally" from the link's own mass and inertia only (§6, Fig. 8);
-- the gravity torque on each hinge, −s·((c − d) × M g), which gravity compensation cancels.
+- the gravity torque on each hinge, −s·((c − d) × M g), which gravity compensation cancels;
+- the joint-space inertia M (the composite-rigid-body algorithm's): for hinge g in-board of (or equal to) hinge h,
+  M_hg = s_h·D s_g + M s_h·((c − d_h) × (s_g × (c − d_g))) with h's composite (M, c, D); its diagonal is eq. 7,
+  and its in-board entries are what ``coupling="exact"`` puts in place of eq. 8–9's m_h (s_h·s_g).
 """
 
 from __future__ import annotations
@@ -205,6 +208,58 @@ class ArticulatedModel:
         g = np.asarray(self.gravity, dtype=np.float64)
         moment = np.cross(c - pivots, M[None, :, None] * g)  # gravity's moment about each pivot
         return -np.einsum("bjci,bji->bjc", axes, moment)
+
+    def inboard_hinges(self) -> np.ndarray:
+        """P (3J, 3J): P[h, g] = 1 when hinge g is in-board of hinge h (accelerates h's subtree, On the Beat eq. 8):
+        every hinge of every ancestor joint and the earlier hinges of h's own joint; hinges ordered root first,
+        (yaw, pitch, roll) per joint."""
+        P = getattr(self, "_P", None)
+        if P is None:
+            J = self.num_joints
+            P = np.zeros((3 * J, 3 * J))
+            for j in range(J):
+                anc = []
+                k = self.skeleton.parents[j]
+                while k >= 0:
+                    anc.append(k)
+                    k = self.skeleton.parents[k]
+                for c in range(3):
+                    for a in anc:
+                        P[3 * j + c, 3 * a: 3 * a + 3] = 1.0
+                    P[3 * j + c, 3 * j: 3 * j + c] = 1.0
+            object.__setattr__(self, "_P", P)
+        return P
+
+    def joint_space_inertia(self, angles: np.ndarray) -> np.ndarray:
+        """The joint-space inertia M (B, 3J, 3J) [kg·m²] of poses (B, J, 3) (what MuJoCo's ``mj_fullM`` gives).
+
+        Column g of M is the torque on every hinge that a unit acceleration of hinge g takes at rest: for g in-board
+        of (or equal to) h, it turns h's out-board composite (mass M, centre of mass c, inertia D about c) about
+        s_g through d_g, which takes M_hg = s_h·D s_g + M s_h·((c − d_h) × (s_g × (c − d_g))) about s_h through
+        d_h (the rate of the composite's angular momentum about d_h, projected on s_h); M_hh is eq. 7's moment.
+        Hinges on separate branches do not couple, and M is symmetric."""
+        th = np.asarray(angles, dtype=np.float64)
+        B, J = th.shape[:2]
+        M, C, D = self.composite(th)
+        _, axes, piv = self.frames(th, with_axes=True)
+        s = axes.reshape(B, 3 * J, 3)
+        d = np.repeat(piv, 3, axis=1)  # each hinge's pivot (B, 3J, 3)
+        Ch, Dh, Mh = np.repeat(C, 3, axis=1), np.repeat(D, 3, axis=1), np.repeat(M, 3)  # h's composite
+        a = Ch - d  # (B, H, 3): c − d_h
+        b = Ch[:, :, None, :] - d[:, None, :, :]  # (B, H, G, 3): c − d_g
+        # s_h·(a × (s_g × b)) = (s_h·s_g)(a·b) − (s_h·b)(a·s_g)
+        ss = np.einsum("bhi,bgi->bhg", s, s)
+        lever = ss * np.einsum("bhi,bhgi->bhg", a, b) \
+            - np.einsum("bhi,bhgi->bhg", s, b) * np.einsum("bhi,bgi->bhg", a, s)
+        L = np.einsum("bhi,bhik,bgk->bhg", s, Dh, s) + Mh[None, :, None] * lever
+        L = L * (self.inboard_hinges() + np.eye(3 * J))[None]
+        return L + np.swapaxes(L, 1, 2) - L * np.eye(3 * J)[None]
+
+    def inboard_inertia(self, angles: np.ndarray) -> np.ndarray:
+        """The in-board entries of the joint-space inertia (B, 3J, 3J) [kg·m²]: M_hg where g is in-board of h
+        (:meth:`inboard_hinges`), zero elsewhere (the strictly lower triangle in hinge order, per branch): what
+        ``OnTheBeat(coupling="exact")`` uses in eq. 8–10 in place of m_h (s_h·s_g)."""
+        return self.joint_space_inertia(angles) * self.inboard_hinges()[None]
 
     def frames(self, angles: np.ndarray, *, with_axes: bool = False):
         """Lean FK of poses (B, J, 3) [rad]: link rotations R (B, J, 3, 3) (rest → world) and pivots (B, J, 3) [m],

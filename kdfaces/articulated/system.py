@@ -49,12 +49,14 @@ class SkeletalSystem:
         model: links, masses, inertias, named points.
         settle_time_s: the tension t̂ [s] (scalar, or (J, 3) per hinge): a larger t̂ is a more relaxed character.
         engine: "mujoco" or "newton"; substep_s: the engine step [s] (each KD step is split into whole substeps).
-        inertia, timing, damping_ratio, parent_compensation, gravity_compensation: of :class:`OnTheBeat`.
+        inertia, timing, damping_ratio, parent_compensation, gravity_compensation, coupling: of :class:`OnTheBeat`
+            (``coupling``: "paper", eq. 8–9 as printed, or "exact", the joint-space inertia's in-board entries).
     """
 
     def __init__(self, model: ArticulatedModel, *, settle_time_s=0.2, engine: str = DEFAULT_ENGINE,
                  substep_s: float = 0.002, inertia: str = "composite", timing: str = "critical",
-                 damping_ratio: float = 1.0, parent_compensation: bool = True, gravity_compensation: bool = True):
+                 damping_ratio: float = 1.0, parent_compensation: bool = True, gravity_compensation: bool = True,
+                 coupling: str = "paper"):
         if not (np.isfinite(substep_s) and substep_s > 0):
             raise KDInputError(f"substep_s: expected a positive number of seconds, got {substep_s}")
         self.model, self.engine_name, self.substep_s = model, engine, float(substep_s)
@@ -63,7 +65,7 @@ class SkeletalSystem:
             raise KDInputError("settle_time_s: expected positive seconds")
         self.controller = OnTheBeat(model, inertia=inertia, timing=timing, damping_ratio=damping_ratio,
                                     parent_compensation=parent_compensation,
-                                    gravity_compensation=gravity_compensation)
+                                    gravity_compensation=gravity_compensation, coupling=coupling)
         self._engines: dict = {}
         self._owner: dict = {}
         self._tokens = 0
@@ -271,7 +273,8 @@ def simulate_keyframes(model: ArticulatedModel, start_angles, keyframes: list[Ke
     for keyframe k the targets are its (θ̂, ω̂) and the time is its duration t̂_k − t̂_(k−1), so the gains make the
     chain arrive at t̂_k (On the Beat §4.1, §5.1). Returns (times (T,), angles (T, J, 3), rates (T, J, 3)).
 
-    ``controller`` defaults to composite inertia with parent and gravity compensation."""
+    ``controller`` defaults to composite inertia with parent and gravity compensation (eq. 8–9's coupling as
+    printed)."""
     ctrl = controller or OnTheBeat(model)
     q0 = np.asarray(start_angles, dtype=np.float64)[None]
     eng = make_engine(engine, model, 1, step_s, controller=ctrl)

@@ -1,5 +1,6 @@
-"""Skeletal KD on an existing engine (issue 16): MuJoCo against Newton on the batched neck-chain KD, and the arm's KD
-state at δ = 0.3 s (the paper's 10 ms figure)."""
+"""Skeletal KD on an existing engine (issue 16): MuJoCo against Newton on the batched neck-chain KD, the arm's KD
+state at δ = 0.3 s (the paper's 10 ms figure), and On the Beat's Fig. 8 timing on the conductor sequence with both
+parent-torque couplings (eq. 8–9 as printed, and the joint-space inertia's exact in-board entries)."""
 
 from __future__ import annotations
 
@@ -135,4 +136,47 @@ def bench_arm_kd(repeats: int):
              "unit": "ms per KD state"}]
 
 
-BENCHMARKS = [("engine_steps", bench_engine_steps), ("neck_kd", bench_neck_kd), ("arm_kd", bench_arm_kd)]
+def bench_on_the_beat_timing(repeats: int):
+    """On the Beat Fig. 8 (:func:`kdfaces.articulated.punch.timing_experiment`): mean |t_90 − t̂| over the 108
+    (keyframe, hinge) pairs of the conductor sequence, composite gains with each coupling against local gains; the
+    rate is the ratio local / composite, the time one run of the experiment (both controllers); and the arm's KD
+    state with the exact coupling (one state, δ = 0.3 s, as ``arm_kd_state``, timed alternately with the paper
+    coupling)."""
+    from kdfaces.articulated import COUPLINGS, SkeletalSystem, arm_chain_model
+    from kdfaces.articulated.punch import PUNCH_SETTLE_S, punch_trajectory, timing_experiment
+    from kdfaces.kd import simulate_kd
+
+    model = arm_chain_model()
+    out = []
+    for coupling in COUPLINGS:
+        t0 = time.perf_counter()
+        t = timing_experiment(model, coupling=coupling)
+        wall = time.perf_counter() - t0
+        comp, loc = t["composite"], t["local"]
+        c, lo = comp["mean_abs_timing_error_s"], loc["mean_abs_timing_error_s"]
+        what = "m_h (s_h·s_g), eq. 8–9 as printed" if coupling == "paper" else "M_hg from MuJoCo's qM"
+        out.append({"name": f"on_the_beat_timing_{coupling}",
+                    "size": f"conductor, mean abs(t90 − t̂) over {comp['counted']} keyframe-hinges, coupling {what}: "
+                            f"composite {c:.3f} s, local {lo:.3f} s, overshoot {comp['overshoot_deg'].max():.1f}° "
+                            f"(local {loc['overshoot_deg'].max():.1f}°)",
+                    "median_s": wall, "rate": lo / c, "unit": "× (local / composite timing error)"})
+    traj, t_i, _ = punch_trajectory(model)
+    walls = {}
+    for coupling in COUPLINGS:  # interleaved, so that both see the same load
+        system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, substep_s=0.005, coupling=coupling)
+        simulate_kd(system, traj, [t_i], 0.3, step_s=0.01)
+        walls[coupling] = (system, [])
+    for _ in range(max(21, repeats)):
+        for system, w in walls.values():
+            t0 = time.perf_counter()
+            simulate_kd(system, traj, [t_i], 0.3, step_s=0.01)
+            w.append(time.perf_counter() - t0)
+    paper, exact = (statistics.median(walls[c][1]) for c in ("paper", "exact"))
+    out.append({"name": "arm_kd_state_exact", "size": f"as arm_kd_state, coupling exact (paper coupling in the same "
+                f"run {1e3 * paper:.2f} ms; load average {os.getloadavg()[0]:.1f} on 2 cores)", "median_s": exact,
+                "rate": 1e3 * exact, "unit": "ms per KD state"})
+    return out
+
+
+BENCHMARKS = [("engine_steps", bench_engine_steps), ("neck_kd", bench_neck_kd), ("arm_kd", bench_arm_kd),
+              ("on_the_beat_timing", bench_on_the_beat_timing)]

@@ -11,7 +11,9 @@ The timing experiment drives the arm through a dozen conductor-like poses (the p
 On the Beat's control (composite inertia, parent-torque and gravity compensation) and with "locally" critically
 damped gains (the joint's own link only, gravity compensation, no parent-torque compensation; §6 Fig. 8),
 and reports, for every hinge each keyframe animates, how late or early it removes 90 % of its error (On the Beat's
-own definition of reaching a keyframe, §4.1; see :func:`timing_experiment`) and how far the arm overshoots.
+own definition of reaching a keyframe, §4.1; see :func:`timing_experiment`) and how far the arm overshoots. The
+composite controller is measured with both parent-torque couplings (:data:`~kdfaces.articulated.COUPLINGS`): eq. 8–9
+as printed (m_h (s_h·s_g)) and the joint-space inertia's exact in-board entries M_hg.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 
 from ..errors import KDInputError
 from .chains import arm_chain_model
-from .control import OnTheBeat
+from .control import COUPLINGS, OnTheBeat
 from .engines import DEFAULT_ENGINE, make_engine
 from .model import ArticulatedModel, chain_axes
 from .system import SkeletalSystem
@@ -103,8 +105,12 @@ def _time_to_fraction(err: np.ndarray, e0: np.ndarray, times: np.ndarray, fracti
 
 
 def timing_experiment(model: ArticulatedModel | None = None, *, step_s: float = 0.002, engine: str = DEFAULT_ENGINE,
-                      horizon: float = 4.0) -> dict:
-    """On the Beat Fig. 8, measured: the conductor sequence with composite and with local gains.
+                      horizon: float = 4.0, coupling: str = "paper", local: bool = True) -> dict:
+    """On the Beat Fig. 8, measured: the conductor sequence with composite and (``local``) with local gains.
+
+    The composite controller's parent-torque compensation uses ``coupling`` (eq. 8–10: "paper" m_h (s_h·s_g), or
+    "exact" the joint-space inertia's in-board entries M_hg); the local one has no parent-torque compensation, so
+    it does not depend on the coupling.
 
     The metric is the paper's own definition of reaching a keyframe, per joint axis: a physical keyframe
     γ = (θ̂, ω̂, t̂) is reached when the fraction f = 0.9 of the error it was given has been removed (§4.1: "reduces
@@ -125,13 +131,15 @@ def timing_experiment(model: ArticulatedModel | None = None, *, step_s: float = 
     states (:func:`_critical_error`), the error eq. 4 makes by itself on a chained sequence (a transition that
     starts moving does not reach 90 % at t̂ even without any coupling). The overshoot of a keyframe [deg] is the
     largest excursion past the target of its hinges (0 when none passes it)."""
+    if coupling not in COUPLINGS:
+        raise KDInputError(f"coupling {coupling!r} unknown; expected one of {COUPLINGS}")
     model = model or arm_chain_model()
     start, keys = conductor_keyframes(model)
-    out = {}
-    for inertia in ("composite", "local"):
+    out = {"coupling": coupling}
+    for inertia in ("composite", "local") if local else ("composite",):
         # On the Beat (composite inertia, parent-torque and gravity compensation) against the inertia-scaled PD it
         # improves on ([ZH02, ZMCF05]): the link's own inertia, gravity compensation, no parent-torque compensation
-        ctrl = OnTheBeat(model, inertia=inertia, parent_compensation=inertia == "composite")
+        ctrl = OnTheBeat(model, inertia=inertia, parent_compensation=inertia == "composite", coupling=coupling)
         main = make_engine(engine, model, 1, step_s, controller=ctrl)
         side = make_engine(engine, model, 1, step_s, controller=ctrl)
         main.set_state(start[None], np.zeros((1, *start.shape)))
@@ -174,6 +182,16 @@ def timing_experiment(model: ArticulatedModel | None = None, *, step_s: float = 
     return out
 
 
+def _coupling_figures(comp: dict, loc: dict) -> dict:
+    """The timing figures of one parent-torque coupling for summary.json: mean |t_90 − t̂| [s] of the composite
+    controller with that coupling and of the local one, their ratio, and the largest overshoot [deg] of each."""
+    return {"composite_s": comp["mean_abs_timing_error_s"], "local_s": loc["mean_abs_timing_error_s"],
+            "ratio_local_over_composite": loc["mean_abs_timing_error_s"] / max(comp["mean_abs_timing_error_s"], 1e-12),
+            "overshoot_max_deg": {"composite": float(comp["overshoot_deg"].max()),
+                                  "local": float(loc["overshoot_deg"].max())},
+            "never_reached": comp["never_reached"]}
+
+
 def _segments(model: ArticulatedModel, q: np.ndarray) -> np.ndarray:
     """Polyline (J + 2, 3) [m] of the arm at pose (J, 3): chest centre, the pivots, the fist."""
     _, _, piv = chain_axes(model.skeleton, q[None])
@@ -202,21 +220,26 @@ def _arm_panel(ax, model, q, target, *, title=None, color="#1f5fa8", ghost=None)
 
 
 def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, substep_s: float = 0.005,
-              width_s: float = 0.12, update: str = "paper", movie: bool = True) -> dict:
+              width_s: float = 0.12, update: str = "paper", movie: bool = True, coupling: str = "paper") -> dict:
     """Run the punch and the timing experiment; write filmstrip_punch.png, convergence.png, timing.png,
     movie.mp4 (unless ``movie`` is False) and summary.json to ``out``. Returns the summary.
 
     The IKD solve of the punch uses ``update`` ("paper": eq. 5 with a fresh trial every iteration, the paper's §6.3
     convergence claim; "secant" also works) to a 0.01 mm tolerance; the summary reports the error after 6
-    iterations."""
+    iterations. ``coupling`` is the parent-torque coupling of the punch's controller and of the timing figures at
+    the top of ``summary["timing"]`` ("paper": eq. 8–9 as printed, "exact": the joint-space inertia's in-board
+    entries); ``summary["timing"]["couplings"]`` and timing.png report the composite controller with both."""
     from ..ikd import GaussianBasis, end_effector_constraint, solve_ikd, velocity_constraint
     from ..io.summary import write_summary
     from ..kd import simulate_kd
     from ..viz.figures import save_figure, subplots
 
+    if coupling not in COUPLINGS:
+        raise KDInputError(f"coupling {coupling!r} unknown; expected one of {COUPLINGS}")
     out = Path(out)
     model = arm_chain_model()
-    system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, engine=engine, substep_s=substep_s)
+    system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, engine=engine, substep_s=substep_s,
+                            coupling=coupling)
     traj, t_i, target = punch_trajectory(model)
     h = 1.0 / traj.fps
     fist = system.point_index("fist")
@@ -247,8 +270,11 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
                              label="fist at rest")
     res_v = solve_ikd(system, traj, [c, cv], window_s=window_s, step_s=h, update=update, tolerance_m=1e-5,
                       tolerance_mps=1e-3, max_iterations=50)
-    timing = timing_experiment(model, engine=engine)
+    timing = timing_experiment(model, engine=engine, coupling=coupling)
     comp, loc = timing["composite"], timing["local"]
+    # the composite controller with every coupling (the local one has no parent-torque compensation)
+    composites = {c: comp if c == coupling else timing_experiment(model, engine=engine, coupling=c,
+                                                                   local=False)["composite"] for c in COUPLINGS}
 
     # figures
     K = traj.evaluate(frames, 0)[0]
@@ -280,20 +306,26 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
     outputs.append(save_figure(fig, out / "convergence.png"))
     fig, (a1, a2) = subplots(2, 1, figsize=(7.6, 6.0))
     kt = timing["keyframe_times_s"]
-    w = 0.05
-    for (name, d), off in ((("composite", comp), -w), (("local", loc), w)):
-        a1.bar(kt + off, 1e3 * d["per_keyframe_mean_abs_s"], width=2 * w, label=f"{name} gains")
-        a2.bar(kt + off, d["overshoot_deg"], width=2 * w, label=f"{name} gains")
+    w = 0.035
+    series = [(f"composite gains, {c} coupling", composites[c]) for c in COUPLINGS] + [("local gains", loc)]
+    for k, (name, d) in enumerate(series):
+        off = (k - (len(series) - 1) / 2) * 2 * w
+        a1.bar(kt + off, 1e3 * d["per_keyframe_mean_abs_s"], width=2 * w, label=name)
+        a2.bar(kt + off, d["overshoot_deg"], width=2 * w, label=name)
     a1.plot(kt, 1e3 * comp["ideal_per_keyframe_mean_abs_s"], "k_", ms=16, mew=2,
-            label="decoupled critically damped joints, same start")
-    top = 1e3 * max(comp["per_keyframe_mean_abs_s"].max(), loc["per_keyframe_mean_abs_s"].max())
+            label=f"decoupled critically damped joints, same start ({coupling})")
+    top = 1e3 * max(d["per_keyframe_mean_abs_s"].max() for _, d in series)
     a1.set_ylim(0.0, 1.3 * top)
     a1.set_ylabel("mean |t_90 − t̂| per hinge [ms]")
+    figures = ", ".join(f"composite {c} {1e3 * composites[c]['mean_abs_timing_error_s']:.0f} ms "
+                        f"({loc['mean_abs_timing_error_s'] / composites[c]['mean_abs_timing_error_s']:.1f}×)"
+                        for c in COUPLINGS)
     a1.set_title(f"On the Beat Fig. 8: time each animated hinge takes to remove 90 % of its error, against t̂\n"
-                 f"(mean over {comp['counted']} keyframe-hinges: composite "
-                 f"{1e3 * comp['mean_abs_timing_error_s']:.0f} ms, local {1e3 * loc['mean_abs_timing_error_s']:.0f} "
-                 f"ms, decoupled {1e3 * comp['ideal_mean_abs_timing_error_s']:.0f} ms)", fontsize=9)
-    a1.legend(fontsize=7, ncol=3, loc="upper center")
+                 f"mean over {comp['counted']} keyframe-hinges: {figures};\nlocal "
+                 f"{1e3 * loc['mean_abs_timing_error_s']:.0f} ms; decoupled "
+                 f"{1e3 * comp['ideal_mean_abs_timing_error_s']:.0f} ms (from the {coupling} coupling's states)",
+                 fontsize=8)
+    a1.legend(fontsize=7, ncol=2, loc="upper center")
     a2.set_ylabel("largest overshoot [deg]")
     a2.set_xlabel("keyframe time [s]")
     a2.legend(fontsize=7)
@@ -319,7 +351,7 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
     summary = {
         "skeleton": {"engine": engine, "joints": list(model.skeleton.names), "dofs": model.dofs,
                      "masses_kg": model.masses.round(3).tolist()},
-        "kd": {"window_s": window_s, "substep_s": substep_s, "settle_time_s": PUNCH_SETTLE_S,
+        "kd": {"window_s": window_s, "substep_s": substep_s, "settle_time_s": PUNCH_SETTLE_S, "coupling": coupling,
                "ms_per_state": 1e3 * float(np.median(walls)), "cpu_ms_per_state": 1e3 * float(np.median(cpus)),
                "ms_per_state_batch": batch_ms,
                "batch": len(frames), "miss_before_ikd_m": miss_m},
@@ -346,7 +378,9 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
                                       "decoupled": comp["ideal_per_keyframe_mean_abs_s"].tolist()},
                    "overshoot_deg": {"composite": comp["overshoot_deg"].tolist(),
                                      "local": loc["overshoot_deg"].tolist()},
-                   "never_reached": {"composite": comp["never_reached"], "local": loc["never_reached"]}},
+                   "never_reached": {"composite": comp["never_reached"], "local": loc["never_reached"]},
+                   "coupling": coupling,
+                   "couplings": {c: _coupling_figures(d, loc) for c, d in composites.items()}},
         "outputs": [str(p.relative_to(out)) for p in outputs],
     }
     if not np.isfinite(hist).all():

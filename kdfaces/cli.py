@@ -309,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .io.export import add_export_option
     from .shots.render import add_render_parser
     from .shots.run import add_run_parser
-    from .viz.viewer import add_view_parser
+    from .shots.view import add_view_parser
 
     ap = argparse.ArgumentParser(prog="kdfaces", description="Kinodynamics for blend-shape face rigs.")
     ap.add_argument("-v", "--verbose", action="store_true", help="show Warp's and VTK's own messages")

@@ -111,3 +111,18 @@ def test_public_names_import(pkg):
     assert module.__all__, f"{pkg} exports nothing"
     missing = [n for n in module.__all__ if not hasattr(module, n)]
     assert not missing, f"{pkg}.__all__ names that do not import: {missing}"
+
+
+#: (importer prefix, imported prefix): imports that would run up the layers (the lower layer never knows the upper)
+FORBIDDEN_IMPORTS = [("kdfaces.viz", "kdfaces.shots")]
+
+
+@pytest.mark.parametrize("low, high", FORBIDDEN_IMPORTS, ids=[f"{a}->{b}" for a, b in FORBIDDEN_IMPORTS])
+def test_imports_flow_one_way(low, high):
+    graph = import_graph()
+
+    def within(mod, prefix):
+        return mod == prefix or mod.startswith(prefix + ".")
+
+    bad = sorted(f"{m} → {t}" for m, ts in graph.items() if within(m, low) for t in ts if within(t, high))
+    assert not bad, "imports up the layers: " + ", ".join(bad)

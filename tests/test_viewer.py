@@ -126,7 +126,7 @@ def test_play_stop(viewer):
 def test_screenshot_mode(tmp_path):
     from PIL import Image
 
-    from kdfaces.viz.viewer import add_view_parser
+    from kdfaces.shots.view import add_view_parser
 
     ap = argparse.ArgumentParser()
     add_view_parser(ap.add_subparsers())

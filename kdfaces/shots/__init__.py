@@ -6,6 +6,7 @@ from .demo import run_demo
 from .render import render_shot
 from .run import ShotRun, run_shot, run_summary, write_run_outputs
 from .shotfile import Shot, load_shot, parse_shot
+from .view import add_view_parser, view_shot
 
 __all__ = ["DEMO_SHOT", "demo_animation", "run_demo", "render_shot", "ShotRun", "run_shot", "run_summary",
-           "write_run_outputs", "Shot", "load_shot", "parse_shot"]
+           "write_run_outputs", "Shot", "load_shot", "parse_shot", "view_shot", "add_view_parser"]

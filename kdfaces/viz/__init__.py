@@ -8,10 +8,10 @@ from .ikd_report import convergence_plot, offset_grid, offset_grid_plot
 from .kd_report import KDErrorReport, kd_error_report, write_kd_report
 from .markers import constraint_markers, constraint_panel
 from .movie import render_movie, write_movie
-from .viewer import ShotViewer, view_shot
+from .viewer import ShotViewer
 
 __all__ = [
     "FaceRenderer", "filmstrip", "image_grid", "save_figure", "deviation_mm", "heatmap_strip", "convergence_plot",
     "offset_grid", "offset_grid_plot", "KDErrorReport", "kd_error_report", "write_kd_report", "constraint_markers",
-    "constraint_panel", "render_movie", "write_movie", "ShotViewer", "view_shot",
+    "constraint_panel", "render_movie", "write_movie", "ShotViewer",
 ]

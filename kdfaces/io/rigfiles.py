@@ -328,7 +328,11 @@ def _check_surface(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> N
 def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
     """Write the rig as ``neutral.obj`` + one OBJ per shape (full positions), for other tools: its polygons, UVs,
     parts as groups and smooth normals; lengths divided by ``unit_m`` (metres per written unit; 0.01 writes
-    centimetres)."""
+    centimetres).
+
+    Not everything survives: the skeleton (neck/head joints and skin weights) is not written, so the folder loads
+    back without one, and :func:`load_obj_folder` reads the shapes in alphabetical order of their file names, not
+    in ``rig.shape_names``' order. :func:`save_npz` keeps both."""
     d = Path(folder)
     counts, corners = rig.polygon_counts, rig.polygon_corners
     groups = None

@@ -24,7 +24,8 @@ __all__ = ["KDErrorReport", "kd_error_report", "write_kd_report"]
 
 @dataclass(frozen=True)
 class KDErrorReport:
-    """Errors of KD states against the full simulation.
+    """Errors of KD states against the full simulation, from :func:`kd_error_report`; :func:`write_kd_report`
+    draws it (``kd_error.png``) and writes :meth:`to_json` (``kd_error.json``).
 
     Attributes:
         times: frame times [s], shape (F,).
@@ -45,7 +46,9 @@ class KDErrorReport:
     window_auto: float | None = None
 
     def to_json(self) -> dict:
-        """The report as plain JSON types (seconds, metres)."""
+        """The report as plain JSON types (seconds, metres): ``times_s``, ``epsilon_m``, ``window_auto_s``,
+        ``max_deviation_from_kinematic_m``, ``deviation_from_kinematic_m`` (per frame) and ``sweep``, one entry per
+        window with ``window_s``, ``max_error_vs_full_m``, ``seconds`` and ``error_vs_full_m`` (per frame)."""
         return {
             "times_s": self.times.tolist(),
             "epsilon_m": self.epsilon,

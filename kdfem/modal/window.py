@@ -34,8 +34,27 @@ NONLINEAR_SCALES = (1.0, 0.1)  # full worst-case kick first; a 10× smaller one 
 
 @dataclass
 class WindowRun:
-    """Result of :func:`window_report`: ``result`` (the window.json dict), ``timings`` (stage → seconds), the
-    modal ``analysis``, the linear ``response`` and the written ``files``."""
+    """Result of :func:`window_report`.
+
+    Attributes:
+        result: the ``window.json`` dict, keys :data:`JSON_KEYS` in that order: ``window_s`` δ [s]; ``epsilon_m``
+            ε = 0.001·d·√N [m]; ``diameter_m`` d, the nodes' bounding-box diagonal [m]; ``nodes``, ``tets``;
+            ``mode_hz`` the computed modes [Hz] and their ``damping_ratios``; mode 1's ``m1`` [kg], ``k1`` [N/m]
+            (unit-length mode), ``gamma1`` γ₁ [1/s], ``omega1`` ω₁ [rad/s] and damping ``regime``;
+            ``h_omega_max`` [m/s per rad/s], ``h_v_max`` [1] (the activation's largest angular and linear
+            components); ``qdot1`` q̇₁(0) of eq. 30 [m/s]; ``verified_settle_s``, when the brute-force linear
+            response stays below ε [s] (0: never above it, inf: still above at the end); and
+            ``ratio_predicted_to_verified`` = ``window_s / verified_settle_s``.
+        timings: stage name → seconds (``tetrahedralise``, ``assemble``, ``eigsh``, ``verify linear``, and when
+            run ``verify nonlinear``, ``KD sweep``, ``report``).
+        analysis: the :class:`~kdfem.modal.ModalAnalysis` (modes, K, M, Γ, the worst-case kick, the window).
+        response: the linear response to the worst-case kick (:class:`~kdfem.modal.verify.Response`).
+        files: the paths written (none without ``out``).
+        extra: ``mode1_envelope_settle_s`` (when the measured mode-1 envelope stays below ε [s]),
+            ``truncation_rest_at_delta_m`` (what the modes beyond the first add at δ [m]),
+            ``max_node_displacement_m``, and when those stages ran ``nonlinear`` (the FEM's backward-Euler runs)
+            and ``sweep`` (the KD-vs-full errors over the demo animation); not written to ``window.json``.
+    """
 
     result: dict
     timings: dict = field(default_factory=dict)

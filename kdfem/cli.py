@@ -15,12 +15,14 @@ __all__ = ["main", "build_parser"]
 
 def _demo(args) -> dict:
     from kdfaces.defaults import user_cache_dir
+    from kdfaces.errors import check_count
 
     from .demo import run_hat_demo
 
+    check_count(args.offset_grid, "--offset-grid", minimum=0)
     return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
                         edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads,
-                        cache_dir=user_cache_dir() / "tets")
+                        offset_grid=args.offset_grid, cache_dir=user_cache_dir() / "tets")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="evaluate every n-th frame of the shot (default 2; summary fps is the evaluated rate)")
     demo.add_argument("--threads", type=int, default=2,
                       help="threads running the KD batch's windows (default 2)")
+    demo.add_argument("--offset-grid", type=int, default=3, metavar="N",
+                      help="N x N hat-tip targets of the Fig. 9 analog, IKD through the head posture "
+                           "(default 3, about 40 s; 0 skips it)")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)

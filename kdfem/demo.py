@@ -1,4 +1,5 @@
-"""``kdfem demo``: the default head nods and turns wearing a floppy hat; KD against the full simulation."""
+"""``kdfem demo``: the default head nods and turns wearing a floppy hat; KD against the full simulation; and the
+Fig. 9 analog, IKD of the hat tip over a grid of targets (:mod:`kdfem.scenes.offset_grid`)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ from kdfaces import defaults
 from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import check_count
 
-__all__ = ["run_hat_demo", "SWEEP_WINDOWS_S"]
+__all__ = ["run_hat_demo", "SWEEP_WINDOWS_S", "OFFSET_GRID_SIZE"]
 
 SWEEP_WINDOWS_S = (0.08, 0.16, 0.32, 0.568)
+#: The Fig. 9 analog's default grid: N × N hat-tip targets (``kdfem demo --offset-grid N``; 0 skips it).
+OFFSET_GRID_SIZE = 3
 
 
 def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0.15) -> np.ndarray:
@@ -31,7 +34,7 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
 def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WINDOW_S,
                  step_s: float = defaults.HAT_STEP_S,
                  edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, frame_stride: int = 2,
-                 threads: int = 2, cache_dir=None) -> dict:
+                 offset_grid: int = OFFSET_GRID_SIZE, threads: int = 2, cache_dir=None) -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | reduced KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png, reduced_error_vs_full.png and summary.json; returns the
@@ -45,6 +48,10 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     once and keeps the tets in ``cache_dir`` by content hash (pytetwild's output differs run to run), when one is
     given. ``threads``: the KD batch runs as that many groups of whole windows in parallel threads
     (:meth:`~kdfem.fem.HatSystem.run_windows`; the demo runs 1.3× faster on two than on one).
+
+    ``offset_grid`` N > 0 adds the Fig. 9 analog (:func:`~kdfem.scenes.offset_grid.hat_offset_grid`): the hat tip
+    sent through the head posture to an N × N grid of targets, six iterations of the paper's update and of ours,
+    ``ikd_offset_grid.png`` and ``summary.json``'s ``ikd.offset_grid`` (about N² × 4 s); 0 skips it.
     """
     window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig
@@ -59,6 +66,7 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     from .render import error_plot, hat_filmstrip, reduced_error_plot
 
     frame_stride, threads = check_count(frame_stride, "frame_stride"), check_count(threads, "threads")
+    offset_grid = check_count(offset_grid, "offset_grid", minimum=0)
     out = Path(out)
     rig = load_rig(rig)
     anim = demo_animation()
@@ -107,6 +115,13 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
         error_plot(out / "kd_error_vs_full.png", times, errors, dev),
         reduced_error_plot(out / "reduced_error_vs_full.png", times, tip_error, vertex_error, tip_swing),
     ]
+    grid = None
+    if offset_grid:
+        from .scenes.offset_grid import hat_offset_grid
+
+        # one thread, always: the grid's numbers stay bit for bit whatever --threads says
+        grid = hat_offset_grid(out / "ikd_offset_grid.png", size=offset_grid, threads=1)
+        outputs.append(grid.pop("path"))
     q = tet_quality(mesh)
     summary = {
         "hat": {"nodes": mesh.num_nodes, "tets": mesh.num_tets, "min_tet_volume_m3": q["min_tet_volume_m3"],
@@ -124,5 +139,7 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
                                   "vertex_error_mm": [round(1e3 * float(e), 4) for e in vertex_error]}},
         "outputs": [str(p.relative_to(out)) for p in outputs],
     }
+    if grid is not None:
+        summary["ikd"] = {"offset_grid": grid}
     write_summary(out, summary)
     return summary

@@ -6,9 +6,11 @@ from kdfem.cli import main
 
 
 def test_kdfem_demo(tmp_path):
-    assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5"]) == 0
+    assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5", "--offset-grid", "1"]) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert set(s) == {"hat", "fps", "frames", "kd", "reduced", "outputs"}
+    assert set(s) == {"hat", "fps", "frames", "kd", "reduced", "outputs", "ikd"}
+    grid = s["ikd"]["offset_grid"]  # the Fig. 9 analog, one target here (tests/test_ikd_secant.py: the 3 × 3 default)
+    assert "ikd_offset_grid.png" in s["outputs"] and set(grid["errors_m"]) == {"paper (Algorithm 1)", "secant (ours)"}
     assert set(s["hat"]) == {"nodes", "tets", "min_tet_volume_m3", "min_dihedral_deg"}
     assert s["hat"]["min_tet_volume_m3"] > 0 and s["hat"]["min_dihedral_deg"] > 0
     kd = s["kd"]
@@ -27,8 +29,11 @@ def test_kdfem_demo(tmp_path):
 def test_kdfem_demo_adaptive_windows(tmp_path):
     """``--window adaptive``: each frame's window from the modal envelope; every frame within ε of the full
     simulation (‖·‖ over all nodes), with fewer steps than the §5.3 window."""
-    assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5", "--window", "adaptive"]) == 0
-    kd = json.loads((tmp_path / "summary.json").read_text())["kd"]
+    assert main(["demo", "--out", str(tmp_path), "--frame-stride", "5", "--window", "adaptive",
+                 "--offset-grid", "0"]) == 0
+    s = json.loads((tmp_path / "summary.json").read_text())
+    kd = s["kd"]
+    assert "ikd" not in s  # --offset-grid 0 skips the Fig. 9 analog
     assert kd["window_mode"] == "adaptive" and kd["window_s"] == "adaptive"
     assert 0.1 * kd["epsilon_m"] < kd["max_error_vs_full_m"] <= kd["epsilon_m"]
     assert kd["steps_global"] / kd["steps_adaptive"] >= 2.0

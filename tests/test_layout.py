@@ -1,10 +1,12 @@
-"""The package layout: no import cycle among project modules, few modules per top level, public names import.
+"""The package layout: no import cycle among project modules, imports flow one way (kdfem is built on kdfaces, so no
+kdfaces module imports kdfem), few modules per top level, public names import.
 
 The import graph comes from ``ast`` (every ``import``/``from … import`` anywhere in a module, function-level ones
 included, since a lazy import that closes a cycle is still a cycle in the design). An edge goes to the module that
 is imported; ``from pkg import name`` goes to ``pkg.name`` when that is a module, else to ``pkg`` (its
 ``__init__``). Parent packages a module lives in are not edges (Python imports them first, they do not import back
-through their children unless their ``__init__`` says so, which is an edge of its own).
+through their children unless their ``__init__`` says so, which is an edge of its own). A call of
+``importlib.import_module("…")`` or ``__import__("…")`` with a literal name is an import too.
 """
 
 from __future__ import annotations
@@ -18,27 +20,43 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("kdfaces", "kdfem")
 
 
-def _modules() -> dict[str, Path]:
+def _modules(root: Path = ROOT) -> dict[str, Path]:
     out = {}
     for pkg in PACKAGES:
-        for p in (ROOT / pkg).rglob("*.py"):
-            parts = list(p.relative_to(ROOT).with_suffix("").parts)
+        for p in (root / pkg).rglob("*.py"):
+            parts = list(p.relative_to(root).with_suffix("").parts)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             out[".".join(parts)] = p
     return out
 
 
-def import_graph() -> dict[str, set[str]]:
-    """Module → project modules it imports."""
-    mods = _modules()
+def _dynamic_import(node) -> str | None:
+    """The literal module name of ``importlib.import_module("name")`` / ``import_module("name")`` /
+    ``__import__("name")``, else None."""
+    if not isinstance(node, ast.Call) or not node.args:
+        return None
+    f = node.func
+    name = f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else None
+    arg = node.args[0]
+    if name in ("import_module", "__import__") and isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+        return arg.value
+    return None
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Module → project modules it imports (the packages under ``root``)."""
+    mods = _modules(root)
     graph: dict[str, set[str]] = {m: set() for m in mods}
     for mod, path in mods.items():
         is_pkg = path.name == "__init__.py"
         package = mod if is_pkg else mod.rpartition(".")[0]
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             targets = []
-            if isinstance(node, ast.Import):
+            dynamic = _dynamic_import(node)
+            if dynamic is not None and not dynamic.startswith("."):
+                targets = [dynamic]
+            elif isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):
                 if node.level:
@@ -88,6 +106,39 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_no_import_cycle():
     cycle = find_cycle(import_graph())
     assert cycle is None, "import cycle: " + " → ".join(cycle)
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """(kdfaces module, kdfem module) for every import from kdfaces into kdfem (kdfem is built on kdfaces)."""
+    return sorted((m, t) for m, targets in graph.items() if m.split(".")[0] == "kdfaces"
+                  for t in targets if t.split(".")[0] == "kdfem")
+
+
+def test_kdfaces_never_imports_kdfem():
+    bad = upward_imports(import_graph())
+    assert not bad, "kdfaces imports kdfem (kdfem is built on kdfaces): " + ", ".join(f"{a} → {b}" for a, b in bad)
+
+
+@pytest.mark.parametrize("source", [
+    "from kdfem import default_hat_system\n",
+    "def f():\n    from kdfem.fem import HatSystem\n",  # a lazy import inside a function
+    "import kdfem.scenes.offset_grid\n",
+    "import importlib\nm = importlib.import_module('kdfem.demo')\n",
+])
+def test_the_layering_check_sees_an_upward_import(tmp_path, source):
+    """The check itself: a kdfaces module that imports kdfem, in any of these forms, is found."""
+    for pkg in PACKAGES:
+        (tmp_path / pkg).mkdir()
+        (tmp_path / pkg / "__init__.py").write_text("")
+    for mod in ("demo", "fem", "scenes/offset_grid"):
+        path = tmp_path / "kdfem" / f"{mod}.py"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (path.parent / "__init__.py").touch()
+        path.write_text("")
+    (tmp_path / "kdfaces" / "shots.py").write_text(source)
+    (tmp_path / "kdfem" / "demo.py").write_text("from kdfaces import shots\n")  # downward: allowed
+    bad = upward_imports(import_graph(tmp_path))
+    assert len(bad) == 1 and bad[0][0] == "kdfaces.shots" and bad[0][1].startswith("kdfem"), bad
 
 
 def test_cycle_finder_finds_a_cycle():

@@ -6,16 +6,31 @@ x_K + f, form the error e_i (eq. 1 or 4), simulate the trial x_K + f + e_i φ_i,
 is the paper's "scaled" variant.
 
 ``update="secant"`` (ours): the map from correction to KD state is smooth and nearly linear, and for vertex-state
-constraints nearly diagonal (each vertex mostly answers its own correction through its own PD gain). One trial per
-constraint estimates a per-coordinate response c_k = d_k / r_k (for end effectors and Jacobian lifts a scalar
-c = ‖d‖²/(r·d), so that the step is the paper's projection, eq. 3 and 5); every later sweep updates all
-constraints at once, Δ_i += s·lift(r_i / c_i) (Jacobi), and evaluates every constraint's KD state in **one
-batched** ``simulate_kd`` call. A constraint whose error does not halve gets a fresh trial. Typical cost: N
-trials once, then one batched simulation per sweep.
+constraints nearly diagonal (each vertex mostly answers its own correction through its own PD gain). Each
+constraint keeps a secant model of its measured quantity's response to its correction, built from trials (line 9 of
+Algorithm 1, the correction e = lift(r) and the response d it causes):
+
+- vertex-state constraints (pose, subset, velocity): a per-coordinate response c_k = d_k / r_k, step lift(r / c);
+- point constraints (end effector, plane) and every constraint lifted through a Jacobian (joint angles, §4.4): the
+  last few secant pairs (Δf_j, Δq_j) — trials, and the constraint's own steps when it stepped alone — and the
+  step Σ α_j Δf_j with α the least-squares fit of r by Σ α_j Δq_j. With one pair that is the paper's projection
+  (eq. 3, 5), (r·d/‖d‖²)·e; with more, the least-squares step over a larger space (never a worse fit of the
+  linearised map), a Newton step once the pairs span the point's three coordinates.
+
+Every later sweep updates all constraints at once, Δ_i += s·step_i (Jacobi), and evaluates every constraint's KD
+state in **one batched** ``simulate_kd`` call. The model is trusted only while the map behaves linearly: a step
+of scale s should leave (1 − s) of the residual, and a constraint whose error does not shrink to within
+:data:`LINEARITY_SLACK` of that predicted factor gets a fresh trial at its new state before its next step — the
+paper's update, improved by the pairs it keeps (a step that made the error grow clears them: the paper's update
+exactly). Typical cost: N trials once, then one batched simulation per sweep where the map is linear (a face);
+two simulations per sweep, like Algorithm 1, where it is not (a hat tip moved through the head posture).
 
 Both stop when every constraint is within tolerance (metres, or m/s for velocity constraints), after
-``max_iterations`` sweeps, on divergence, or when the correction grows past ``max_correction_m`` (out of reach);
-the result says which, with residuals — never a hang.
+``max_iterations`` sweeps, on divergence, or out of reach: when the correction grows past ``max_correction_m``, or
+when a trial's response is (nearly) orthogonal to the residual (|cos(r, d)| < :data:`STATIONARY_COS`: no step
+along the correction's direction brings the point closer, a stationary point of the distance above tolerance,
+e.g. a hat tip sent above the highest point any head posture lifts it to). The result says which, with
+residuals — never a hang.
 
 The corrected state is the trajectory's own (``trajectory.state_shape``): a face's vertex positions, where a
 residual lifts directly (eq. 1, or eq. 4–5 for an end effector), or a skeleton's joint angles, where the system
@@ -56,6 +71,18 @@ UPDATES = ("paper", "secant")
 MAX_CORRECTION_RAD = 0.5 * np.pi
 #: Largest correction of a joint-angle *rate* (a velocity slot's Δθ̇) [rad/s] before a target is out of reach.
 MAX_CORRECTION_RAD_PER_S = 4.0 * np.pi
+#: The secant update trusts its model while a step of scale s leaves at most (1 − s + this) of the error (a linear
+#: map leaves 1 − s); a larger error gets a fresh trial (the paper's update) before the constraint's next step.
+LINEARITY_SLACK = 0.1
+#: A trial whose response d makes |cos(r, d)| smaller than this with the residual r cannot bring the measured
+#: quantity closer (the best step along it shortens ‖r‖ by under 0.13 %): the target is reported out of reach.
+STATIONARY_COS = 0.05
+#: The secant step's length is at most this many times the longest one-pair (paper) step for the same residual.
+SECANT_TRUST = 2.0
+#: A residual below this fraction of its quantity's size (1 nm on a 1 m point) is rounding noise: never "no way closer".
+NOISE_FLOOR = 1e-9
+#: Secant pairs a point constraint keeps (at most its residual's size: 3 for an end effector, 1 for a plane).
+SECANT_PAIRS = 3
 
 
 class OffGridConstraintWarning(UserWarning):
@@ -258,24 +285,103 @@ def constraint_errors(constraints, pairs, step_s) -> tuple[list[np.ndarray], np.
     return res, np.array([c.error(r) for c, r in zip(constraints, res)])
 
 
-def _response(c: Constraint, r: np.ndarray, d: np.ndarray, *, scalar_only: bool) -> np.ndarray | float | None:
-    """Estimated response of the measured quantity to a correction lift(r): d ≈ c ⊙ r (per coordinate)."""
+def _response(r: np.ndarray, d: np.ndarray) -> np.ndarray | None:
+    """Per-coordinate response of a vertex-state constraint's quantity to a correction lift(r): d ≈ c ⊙ r, clipped
+    to [0.2, 5]× the scalar least-squares response (r·d)/‖r‖²; None when that scalar is not positive."""
     rr = float((r * r).sum())
     if rr == 0.0:
         return None
-    rd = float((r * d).sum())
-    scalar = rd / rr
+    scalar = float((r * d).sum()) / rr
     if not np.isfinite(scalar) or scalar <= 0.0:
         return None
-    if c.kind in POINT_KINDS or scalar_only:
-        # ‖d‖²/(r·d): the step r/c is then the paper's projection (r·d/‖d‖²)·r (eq. 3, 5), the least-squares step,
-        # which shortens as the response d turns away from r (a nonlinear map, e.g. the hat tip through the posture)
-        # where (r·d)/‖r‖² would lengthen it
-        return float((d * d).sum()) / rd
     big = np.abs(r) >= 0.05 * np.abs(r).max()
     with np.errstate(divide="ignore", invalid="ignore"):
         per = np.where(big, d / np.where(big, r, 1.0), scalar)
     return np.clip(per, 0.2 * scalar, 5.0 * scalar)
+
+
+def _no_way_closer(r: np.ndarray, d: np.ndarray, q: np.ndarray) -> bool:
+    """True when a trial's response d is (nearly) orthogonal to the residual r, |cos(r, d)| < :data:`STATIONARY_COS`
+    (no step along it brings the quantity closer), and r is above the rounding noise of the quantity q (a residual
+    of 1e-17 m has a response of noise, at any angle)."""
+    nr, nd = float(np.linalg.norm(r)), float(np.linalg.norm(d))
+    if nr <= NOISE_FLOOR * max(float(np.linalg.norm(q)), float(np.linalg.norm(q + r))):
+        return False
+    if nd == 0.0 or not np.isfinite(nd):
+        return True
+    return abs(float((r * d).sum())) < STATIONARY_COS * nr * nd
+
+
+class _Secant:
+    """One constraint's model of how its measured quantity answers its correction (``update="secant"``, see the
+    module docstring): a per-coordinate response (``diagonal``: vertex-state pose, subset, velocity) or the last
+    few secant pairs (u_j, Δq_j): the correction lift(u_j) moved the quantity by Δq_j (point constraints and lifts
+    through a Jacobian). The pairs are kept in the lift's input space, the residual's, so a step is lifted at the
+    current state (through the current Jacobian for joint angles) whatever state a pair was measured at."""
+
+    def __init__(self, c: Constraint, through: bool):
+        self.diagonal = c.kind not in POINT_KINDS and not through
+        self.pairs_max = 1 if self.diagonal else SECANT_PAIRS  # diagonal: the last trial, for a projection step
+        self.response = None  # diagonal: c (per coordinate)
+        self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
+        self.trusted = False  # the last step shrank the error by the predicted factor: no trial before the next
+
+    def trial(self, r: np.ndarray, d: np.ndarray) -> None:
+        """A fresh trial at the current state: the correction lift(r) moved the quantity by d (line 9)."""
+        self.response = _response(r, d) if self.diagonal else None
+        self._add(r, d)
+
+    def _add(self, u: np.ndarray, dq: np.ndarray) -> None:
+        """Keep (u, dq) and the newest older pairs whose u is at least 30° from the span of those kept (pairs in
+        one direction that disagree are a nonlinearity, not two directions)."""
+        kept = [(u, dq)]
+        basis = [u.reshape(-1) / max(float(np.linalg.norm(u)), 1e-300)]
+        for pu, pq in reversed(self.pairs):
+            if len(kept) >= min(self.pairs_max, dq.size):
+                break
+            v = pu.reshape(-1)
+            perp = v - sum(float(b @ v) * b for b in basis)
+            if np.linalg.norm(perp) >= 0.5 * np.linalg.norm(v):
+                kept.insert(0, (pu, pq))
+                basis.append(perp / np.linalg.norm(perp))
+        self.pairs = kept
+
+    def step(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The lift input u of the (unscaled) step for residual r and the residual the model predicts after it;
+        None without a model."""
+        if self.diagonal and self.response is not None:
+            return r / self.response, np.zeros_like(r)
+        if not self.pairs:
+            return None
+        Y = np.stack([dq.reshape(-1) for _, dq in self.pairs], axis=1)
+        scale = np.linalg.norm(Y, axis=0)
+        if not (scale > 0).all():
+            return None
+        # β = argmin ‖r − Y β‖ (columns normalised): with one pair (r_j, d_j), β = r·d/‖d‖², the paper's
+        # projection (eq. 3, 5); u = Σ β_j u_j
+        beta = np.linalg.lstsq(Y / scale, r.reshape(-1), rcond=1e-3)[0] / scale
+        u = sum(b * pu for b, (pu, _) in zip(beta, self.pairs))
+        # a trust region: no longer than SECANT_TRUST × the longest step one pair alone would take for r
+        # (‖r‖·‖u_j‖/‖Δq_j‖; the paper's projection is at most that long), where pairs that nearly cancel ask for more
+        reach = SECANT_TRUST * float(np.linalg.norm(r)) * max(float(np.linalg.norm(pu)) / q for (pu, _), q in
+                                                                zip(self.pairs, scale))
+        size = float(np.linalg.norm(u))
+        if size > reach:
+            beta, u = beta * (reach / size), u * (reach / size)
+        return u, r - (Y @ beta).reshape(r.shape)
+
+    def check(self, u: np.ndarray, r_old: np.ndarray, r_new: np.ndarray, err_old: float, err_new: float,
+              step_scale: float, alone: bool) -> None:
+        """After the step lift(u) (``u`` already scaled by s): a linear map leaves (1 − s) of the error. Trust the
+        model only when the error shrank to within :data:`LINEARITY_SLACK` of that; otherwise the map is not
+        behaving linearly over such steps and the model is dropped, so the next step is the paper's update exactly
+        (a fresh trial at the new state, eq. 3 or 5). A trusted constraint that stepped ``alone`` (no other
+        correction changed in the sweep) keeps its step as a secant pair."""
+        self.trusted = err_new <= (1.0 - step_scale + LINEARITY_SLACK) * err_old
+        if not self.trusted:
+            self.pairs, self.response = [], None
+        elif alone and not self.diagonal:
+            self._add(u, r_old - r_new)  # r = target − q: the quantity moved by r_old − r_new
 
 
 class _Lifter:
@@ -503,12 +609,15 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
     limit = limit.reshape(-1, *([1] * (len(lift.state_shape) - 1)))
     res, err = constraint_errors(constraints, pairs, h)
     history = [err]
-    responses: list = [None] * len(constraints)
+    models = [_Secant(c, lift.through) for c in constraints]
+    stationary = np.zeros(len(constraints), dtype=bool)  # a trial found no way closer: out of reach (frozen)
     it = 0
     while it < max_iterations and not (err <= tol).all():
         it += 1
         if update == "paper":
             for i, c in enumerate(constraints):
+                if stationary[i]:
+                    continue
                 (x, xp), = kd.at(traj_f, [c])  # line 7
                 r = c.residual(x, xp, h)
                 e = lift(c, r, x, traj_f)  # line 8 (eq. 1 or 4)
@@ -516,33 +625,48 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
                 (xt, xtp), = kd.at(bump, [c])  # line 9
                 d = c.measure(xt, xtp, h) - c.measure(x, xp, h)
                 dd = float((d * d).sum())
+                if c.error(r) > tol[i] and _no_way_closer(r, d, c.measure(x, xp, h)):
+                    stationary[i] = True
+                    continue
                 if dd == 0.0:
                     continue
                 corr.values[slot_of[i]] += step_scale * float((r * d).sum()) / dd * e  # line 10 (eq. 3 or 5)
                 corr.update()  # line 11
         else:
-            for i, c in enumerate(constraints):
-                if responses[i] is None and err[i] > tol[i]:
+            active = [i for i in range(len(constraints)) if err[i] > tol[i] and not stationary[i]]
+            steps, lifted = {}, {}
+            for i in active:
+                c, m = constraints[i], models[i]
+                plan = m.step(res[i]) if m.trusted else None
+                if plan is None or c.error(plan[1]) > LINEARITY_SLACK * err[i]:
                     x, xp = pairs[i]
-                    e = lift(c, res[i], x, traj_f)
+                    e = lift(c, res[i], x, traj_f)  # a fresh trial (lines 8-9)
                     bump = CorrectedTrajectory(trajectory, corr, bump=(corr.slots[slot_of[i]], e))
                     (xt, xtp), = kd.at(bump, [c])
-                    responses[i] = _response(c, res[i], c.measure(xt, xtp, h) - c.measure(x, xp, h),
-                                             scalar_only=lift.through)
-            for i, c in enumerate(constraints):
-                if err[i] > tol[i] and responses[i] is not None:
-                    corr.values[slot_of[i]] += step_scale * lift(c, res[i] / responses[i], pairs[i][0], traj_f)
+                    d = c.measure(xt, xtp, h) - c.measure(x, xp, h)
+                    if _no_way_closer(res[i], d, c.measure(x, xp, h)):
+                        stationary[i] = True
+                        continue
+                    m.trial(res[i], d)
+                    if len(m.pairs) == 1 and m.response is None:  # the trial alone: Algorithm 1's line 10
+                        coef = step_scale * float((res[i] * d).sum()) / float((d * d).sum())
+                        steps[i], lifted[i] = coef * res[i], coef * e
+                        continue
+                    plan = m.step(res[i])
+                if plan is not None:
+                    steps[i] = step_scale * plan[0]
+            for i, u in steps.items():
+                corr.values[slot_of[i]] += lifted[i] if i in lifted else lift(constraints[i], u, pairs[i][0], traj_f)
             corr.update()
         pairs = kd.at(traj_f, constraints)  # lines 13-17, one batch
-        prev = err
+        prev, res_prev = err, res
         res, err = constraint_errors(constraints, pairs, h)
         history.append(err)
         if callback is not None:
             callback(it, err)
         if update == "secant":
-            for i in range(len(constraints)):
-                if err[i] > max(0.5 * prev[i], tol[i]):
-                    responses[i] = None  # refresh the response estimate with a new trial
+            for i, step in steps.items():
+                models[i].check(step, res_prev[i], res[i], prev[i], err[i], step_scale, alone=len(steps) == 1)
         if not np.isfinite(err).all() or (err > 1e3 * np.maximum(history[0], tol)).any():
             reason = "diverged"
             break
@@ -555,6 +679,9 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
             res, err = constraint_errors(constraints, pairs, h)
             history[-1] = err
             reason = "out_of_reach"
+            break
+        if ((err > tol) <= stationary).all() and stationary.any():
+            reason = "out_of_reach"  # every constraint still above tolerance has no way closer
             break
         if update == "paper" and it >= 2 and np.allclose(err, prev, rtol=1e-12, atol=0) and not (err <= tol).all():
             reason = "stalled"

@@ -5,39 +5,31 @@ underdamped face (ζ = 0.3) with a soft-tissue settle-time map, 0.25 s over bone
 to 0.6 s in the cheeks and lips, so overshoot and follow-through show after each sharp stop; and four IKD
 constraints (an end effector, a tilted-head smile pose, a lip subset 0.9 s later, a brow velocity).
 
-Its Fig. 9 analog (:func:`hat_offset_grid`) is computed where the KD map is nonlinear: the face's map from
-correction to KD state is nearly linear (six iterations reach 1e-7 m for any target offset), so the figure uses the
-floppy hat on the demo's head instead, its tip an end effector driven through the head posture (§4.4, the
-articulated analog of the paper's punch): rotations make that map nonlinear, and targets the tip cannot reach
-exist.
+Its Fig. 9 analog (the error after six IKD iterations over a grid of targets) moved to ``kdfem demo
+--offset-grid N`` (:func:`kdfem.scenes.offset_grid.hat_offset_grid`): the face's map from correction to KD state is
+nearly linear, so the figure uses the floppy hat, and kdfaces does not import kdfem.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .builtin import DEMO_SHOT
 
-__all__ = ["demo_face_model", "run_demo", "hat_offset_grid", "DEMO_SWEEP_S", "DEMO_OFFSETS_M", "HAT_GRID_TIME_S",
-           "HAT_GRID_WINDOW_S", "HAT_GRID_STEP_S", "HAT_GRID_SPAN_M", "HAT_GRID_UPDATES"]
+__all__ = ["demo_face_model", "run_demo", "DEMO_SWEEP_S", "DEMO_OFFSETS_M", "OFFSET_GRID_MOVED"]
 
 #: Windows [s] of the KD-vs-full sweep (the automatic window is added).
 DEMO_SWEEP_S = (0.08, 0.2, 0.4, 1.2)
 #: Target offsets [m] of the face's error-after-6-iterations map, along x and y (:func:`offset_grid` on the first
 #: constraint; nearly linear, so not the demo's figure any more).
 DEMO_OFFSETS_M = np.linspace(-0.05, 0.05, 5)
-#: The hat-tip offset grid: constraint time [s] (during the nod), KD window [s] and simulation step [s].
-HAT_GRID_TIME_S = 5.2
-HAT_GRID_WINDOW_S = 0.3
-HAT_GRID_STEP_S = 0.01
-#: Its target offsets span [m]: sideways (x) and up/down (y) from the tip's KD position, ((x_lo, x_hi), (y_lo,
-#: y_hi)); an n × n grid samples it evenly.
-HAT_GRID_SPAN_M = ((-0.12, 0.12), (-0.16, 0.08))
-#: The updates compared side by side: label → (update, step_scale).
-HAT_GRID_UPDATES = {"paper (Algorithm 1)": ("paper", 1.0), "secant (ours)": ("secant", 1.0)}
+#: What ``kdfaces demo --offset-grid`` and ``run_demo(offset_grid=...)`` say (deprecated; removed in the next release).
+OFFSET_GRID_MOVED = ("the Fig. 9 analog (the hat-tip offset grid) moved to `kdfem demo --offset-grid N` "
+                     "(kdfem.scenes.offset_grid.hat_offset_grid); kdfaces demo no longer writes ikd_offset_grid.png")
 
 
 def demo_face_model(rig, **overrides):
@@ -47,85 +39,30 @@ def demo_face_model(rig, **overrides):
     return dynamics_model(read_shot_table(DEMO_SHOT).get("dynamics", {}), rig, **overrides)
 
 
-def hat_offset_grid(path, *, size: int = 3, iterations: int = 6, span_m=HAT_GRID_SPAN_M,
-                    time_s: float = HAT_GRID_TIME_S, window_s: float = HAT_GRID_WINDOW_S,
-                    step_s: float = HAT_GRID_STEP_S, threads: int = 1) -> dict:
-    """Fig. 9 analog where IKD is nonlinear: the error after ``iterations`` sweeps of the paper's update and of
-    ours, for the default floppy hat's tip on the default head (an end effector driven through the head posture of
-    the demo animation, a :class:`~kdfaces.motion.JointTrajectory`, §4.4) sent to a ``size`` × ``size`` grid of
-    targets offset from its KD position at ``time_s`` [s] over ``span_m`` [m] (x sideways, y up), side by side on
-    one colour scale in mm.
-
-    Writes the PNG ``path``; returns the summary block (offsets, errors [m] and stop reasons per update, wall
-    times). Cost: about ``size``² × (2.0 + 1.1) s on one core (a paper solve of six iterations simulates 13 hat
-    states of ``window_s``, a secant one 8–9).
-    """
-    from kdfem import default_hat_system
-
-    from ..ikd import GaussianBasis, end_effector_constraint
-    from ..io.rigfiles import load_rig
-    from ..kd import simulate_kd
-    from ..motion.trajectory import KinematicTrajectory
-    from ..viz.ikd_report import offset_grid, offset_grid_plot
-    from .builtin import demo_animation
-
-    rig = load_rig("default")
-    joints = KinematicTrajectory(rig, demo_animation()).joints
-    system, _, _ = default_hat_system(rig, threads=threads)
-    tip = int(np.argmax(system.rest_equilibrium[:, 1]))
-    nodes = system.model.mesh.num_nodes
-    here = np.asarray(simulate_kd(system, joints, [time_s], window_s, step_s=step_s))[0, tip]
-    c = end_effector_constraint(time_s, here, [tip], GaussianBasis(time_s, 0.3), num_vertices=nodes,
-                                label="hat tip")
-    xs = np.linspace(*span_m[0], size)
-    ys = np.linspace(*span_m[1], size)
-    errors, reached, reasons, wall = {}, {}, {}, {}
-    for label, (update, scale) in HAT_GRID_UPDATES.items():
-        t0 = time.perf_counter()
-        why: list[str] = []
-        errors[label], reached[label] = offset_grid(system, joints, c, xs, offsets_b_m=ys, window_s=window_s,
-                                                    step_s=step_s, iterations=iterations, update=update,
-                                                    step_scale=scale, reasons=why)
-        reasons[label] = np.array(why).reshape(len(xs), len(ys)).tolist()
-        wall[label] = time.perf_counter() - t0
-    title = (f"Fig. 9 analog: hat tip driven through the head posture at t = {time_s:g} s "
-             f"(window {window_s:g} s), error after {iterations} iterations\n"
-             f"target offsets from the tip's KD position; × = out of reach or diverged")
-    out = offset_grid_plot(path, xs, errors, title=title, offsets_b_m=ys, reached=reached, axes_names=("x", "y"))
-    tol = 1e-4  # the paper's 0.1 mm (Fig. 9: "less than 0.1 mm after 6 iterations, except ... out of reach")
-    return {
-        "path": out,
-        "case": "hat tip (end effector) through the head posture",
-        "time_s": time_s, "window_s": window_s, "step_s": step_s, "iterations": iterations,
-        "offsets_x_m": xs.tolist(), "offsets_y_m": ys.tolist(),
-        "errors_m": {k: v.tolist() for k, v in errors.items()},
-        "reasons": reasons,
-        "cells_above_0.1mm": {k: int((v > tol).sum()) for k, v in errors.items()},
-        "wall_s": wall,
-    }
-
-
 def _largest_deviation_frame(run) -> int:
     return int(np.argmax(np.linalg.norm(run.kd - run.kinematic, axis=-1).max(axis=1)))
 
 
-def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: bool = True,
-             offset_grid_size: int = 3, movie: bool = True, export_unit_m: float = 1.0,
-             progress: bool = False) -> dict:
+def run_demo(out, *, rig="default", threads: int = 2, exports=(), movie: bool = True,
+             export_unit_m: float = 1.0, progress: bool = False, offset_grid=None, offset_grid_size=None) -> dict:
     """Run the demo shot and write everything a person looks at; returns summary.json's content.
 
     KD of every frame at the automatic window, the full simulation and the KD-vs-full sweep (Fig. 10 analog), the
-    IKD solve with the paper's update, its "scaled" variant and the secant update (Fig. 8 analog), the error after
-    6 iterations over an ``offset_grid_size``² grid of hat-tip targets (Fig. 9 analog, :func:`hat_offset_grid`),
-    filmstrips, the deviation heat map at the frame of largest KD deviation (``heatmap.png``) and the movie of
-    the whole shot (``movie.mp4``, kinematic | KD | IKD, GIF where MP4 cannot be written).
+    IKD solve with the paper's update, its "scaled" variant and the secant update (Fig. 8 analog), filmstrips, the
+    deviation heat map at the frame of largest KD deviation (``heatmap.png``) and the movie of the whole shot
+    (``movie.mp4``, kinematic | KD | IKD, GIF where MP4 cannot be written).
+
+    ``offset_grid`` and ``offset_grid_size`` are deprecated and ignored (a :class:`DeprecationWarning`): the Fig. 9
+    analog moved to ``kdfem demo --offset-grid N`` (:data:`OFFSET_GRID_MOVED`).
     """
     from ..errors import check_count
     from ..ikd import solve_ikd
     from ..io.summary import write_summary
 
     threads = check_count(threads, "threads")
-    offset_grid_size = check_count(offset_grid_size, "offset_grid_size")
+    if offset_grid is not None or offset_grid_size is not None:
+        warnings.warn(f"run_demo: offset_grid is deprecated and ignored: {OFFSET_GRID_MOVED}", DeprecationWarning,
+                      stacklevel=2)
     from ..kd import simulate_full
     from ..viz.heatmap import deviation_mm, heat_clim, heatmap_strip
     from ..viz.kd_report import kd_error_report, write_kd_report
@@ -166,10 +103,6 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
                                   timeline=[c.time_s for c in constraints], deviation_from="kinematic",
                                   clim_mm=heat_clim(deviation_mm(run.kd, run.kinematic))))
         movie_s = time.perf_counter() - t0
-    grid = None
-    if offset_grid:
-        grid = hat_offset_grid(out / "ikd_offset_grid.png", size=offset_grid_size)
-        paths.append(grid.pop("path"))
     auto_row = windows.index(run.window_s)
     summary = {
         "rig": {"name": shot.rig.name, "vertices": shot.rig.num_vertices, "shapes": shot.rig.num_shapes},
@@ -195,7 +128,5 @@ def run_demo(out, *, rig="default", threads: int = 2, exports=(), offset_grid: b
     summary["ikd"]["comparison"] = [
         {"update": label, "converged": bool(r.converged), "iterations": int(r.iterations),
          "wall_s": float(r.wall_s), "kd_states_simulated": int(r.kd_states)} for label, r in runs.items()]
-    if grid is not None:
-        summary["ikd"]["offset_grid"] = grid
     write_summary(out, summary)
     return summary

@@ -191,7 +191,7 @@ def bench_newton_vbd(repeats: int = 1) -> list[dict]:
         builder = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=tuple(md.gravity))
         builder.add_soft_mesh(pos=wp.vec3(0.0), rot=wp.quat_identity(), scale=1.0, vel=wp.vec3(0.0),
                               vertices=[wp.vec3(*p) for p in X], indices=md.mesh.tets.ravel().tolist(),
-                              density=md.material.density, k_mu=mu, k_lambda=lam, k_damp=0.0)
+                              density=md.material.density_kg_m3, k_mu=mu, k_lambda=lam, k_damp=0.0)
         for a in md.attached:
             builder.particle_mass[int(a)] = 0.0  # kinematic: driven by the head below
         builder.color()

@@ -69,7 +69,7 @@ class HatViewer(PlotterWindow):
         self.surface_mesh, self.mesh, _ = hat_tetmesh(cache_dir=cache_dir)
         self.attached = attached_nodes(self.mesh.nodes, self.rig.neutral)
         self.embedding = embed_surface(self.mesh, self.surface_mesh.vertices)
-        self.youngs_pa = float(DEFAULT_MATERIAL.youngs if youngs_pa is None else youngs_pa)
+        self.youngs_pa = float(DEFAULT_MATERIAL.youngs_pa if youngs_pa is None else youngs_pa)
         self.rayleigh_alpha = float(defaults.RAYLEIGH_ALPHA)
         self.modes = int(modes)
         self.reduced = bool(reduced)
@@ -95,8 +95,8 @@ class HatViewer(PlotterWindow):
         if key not in self._systems:
             from .fem.default_hat import DEFAULT_MATERIAL
 
-            material = Material(youngs=self.youngs_pa, poisson=DEFAULT_MATERIAL.poisson,
-                                density=DEFAULT_MATERIAL.density, model=DEFAULT_MATERIAL.model)
+            material = Material(youngs_pa=self.youngs_pa, poisson_ratio=DEFAULT_MATERIAL.poisson_ratio,
+                                density_kg_m3=DEFAULT_MATERIAL.density_kg_m3, model=DEFAULT_MATERIAL.model)
             model = FEMModel(self.mesh, material, self.attached, rayleigh_alpha=self.rayleigh_alpha,
                              rayleigh_beta=defaults.RAYLEIGH_BETA)
             self._systems[key] = (ReducedHatSystem(model, embedding=self.embedding, modes=self.modes)

@@ -27,7 +27,7 @@ def main(argv=None) -> Path:
     ap.add_argument("--out", type=Path, default=SHIPPED_HAT_TETS)
     args = ap.parse_args(argv)
     surf = christmas_hat()
-    kw = dict(edge_length_fac=defaults.HAT_EDGE_LENGTH_FAC, envelope_fac=defaults.HAT_ENVELOPE_FAC, coarsen=True)
+    kw = dict(edge_length_fac=defaults.TET_EDGE_LENGTH_FAC, envelope_fac=defaults.TET_ENVELOPE_FAC, coarsen=True)
     mesh = tetrahedralize(surf.vertices, surf.faces, where="hat", **kw)
     key = tet_key(surf.vertices, surf.faces, **kw)
     args.out.parent.mkdir(parents=True, exist_ok=True)

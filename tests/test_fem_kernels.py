@@ -12,7 +12,7 @@ TET = TetMesh(X, np.array([[0, 1, 2, 3]]))
 
 
 def model(kind, nu=0.3):
-    return FEMModel(TET, Material(youngs=1e5, poisson=nu, density=100.0, model=kind), np.array([0]),
+    return FEMModel(TET, Material(youngs_pa=1e5, poisson_ratio=nu, density_kg_m3=100.0, model=kind), np.array([0]),
                     rayleigh_alpha=0.0, rayleigh_beta=0.0)
 
 

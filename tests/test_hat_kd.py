@@ -21,13 +21,13 @@ H = 0.02
 @pytest.fixture(scope="module")
 def setup():
     rig = load_default_rig()
-    surf = christmas_hat(HatParams(segments=16, rings=8, thickness=0.015))
+    surf = christmas_hat(HatParams(segments=16, rings=8, thickness_m=0.015))
     mesh = tetrahedralize(surf.vertices, surf.faces, edge_length_fac=0.12)
     q = tet_quality(mesh)
     assert q["min_tet_volume_m3"] > 0 and q["min_dihedral_deg"] > 1.0
-    model = FEMModel(mesh, Material(youngs=3e4), attached_nodes(mesh.nodes, rig.neutral, distance_m=0.02),
+    model = FEMModel(mesh, Material(youngs_pa=3e4), attached_nodes(mesh.nodes, rig.neutral, distance_m=0.02),
                      rayleigh_alpha=1.0, rayleigh_beta=0.01)
-    system = HatSystem(model, embedding=embed_surface(mesh, surf.vertices), tol=1e-9)
+    system = HatSystem(model, embedding=embed_surface(mesh, surf.vertices), tol_m=1e-9)
     return rig, KinematicTrajectory(rig, demo_animation()), system, surf
 
 
@@ -146,8 +146,8 @@ def test_the_shipped_hat_mesh_is_current_and_used():
     from kdfem.geometry.tetmesh import tet_key
 
     surf = christmas_hat()
-    key = tet_key(surf.vertices, surf.faces, edge_length_fac=defaults.HAT_EDGE_LENGTH_FAC,
-                  envelope_fac=defaults.HAT_ENVELOPE_FAC, coarsen=True)
+    key = tet_key(surf.vertices, surf.faces, edge_length_fac=defaults.TET_EDGE_LENGTH_FAC,
+                  envelope_fac=defaults.TET_ENVELOPE_FAC, coarsen=True)
     with np.load(SHIPPED_HAT_TETS) as d:
         assert str(d["key"]) == key, "the default hat changed: rebuild meshes/hat_tets.npz"
         nodes, tets = d["nodes"], d["tets"]

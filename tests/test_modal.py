@@ -40,11 +40,11 @@ def closed_form(qdot, m, k, c, eps):
 def test_single_dof_reproduces_the_1d_closed_forms(zeta):
     c = 2 * zeta * np.sqrt(M1 * K1)
     alpha = c / M1  # Rayleigh C = αM
-    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1, rayleigh_alpha=alpha)
+    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1, rayleigh_alpha=alpha, rayleigh_beta=0.0)
     assert basis.mass[0] == pytest.approx(M1) and basis.stiffness[0] == pytest.approx(K1)
     assert basis.regimes[0] == {0.05: "underdamped", 1.0: "critical", 3.0: "overdamped"}[zeta]
     h = np.array([0, 0, 0, 1.0, 0, 0])  # q̇ = v per unit linear speed
-    w = modal_window(basis, h, epsilon_m=EPS, omega_max=4.0, v_max=2.0)
+    w = modal_window(basis, h, epsilon_m=EPS, omega_max_radps=4.0, v_max_mps=2.0)
     assert w.qdot1 == pytest.approx(2.0)
     assert w.window_s == pytest.approx(closed_form(2.0, M1, K1, c, EPS), rel=1e-9)
     # and the response really stays below ε after δ: sample the exact solution of the oscillator
@@ -95,7 +95,7 @@ def test_complete_basis_projection_reconstructs_gamma_phi():
 
 def test_worst_case_spatial_velocity_attains_eq30():
     h = np.array([0.1, -0.7, 0.2, 0.3, 0.05, -0.4])
-    phi = worst_case_spatial_velocity(h, omega_max=4.0, v_max=2.0)
+    phi = worst_case_spatial_velocity(h, omega_max_radps=4.0, v_max_mps=2.0)
     assert h @ phi == pytest.approx(0.7 * 4.0 + 0.4 * 2.0)
     assert perceptual_epsilon(np.array([[0, 0, 0], [3.0, 4.0, 0.0]])) == pytest.approx(1e-3 * 5 * np.sqrt(2))
 
@@ -106,7 +106,7 @@ def test_bad_systems():
     singular = sp.csc_matrix(np.diag([0.0, 1.0, 2.0]))
     with pytest.raises(KDInputError, match="attached"):
         modal_basis(singular, sp.identity(3, format="csc"))
-    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1)
+    basis = modal_basis(sp.csc_matrix([[K1]]), sp.csc_matrix([[M1]]), count=1, rayleigh_alpha=0.0, rayleigh_beta=0.0)
     with pytest.raises(KDInputError, match="undamped"):
         modal_window(basis, np.ones(6), epsilon_m=EPS)
 
@@ -132,9 +132,10 @@ def _cantilever_modes(cells_through_thickness):
     n = cells_through_thickness  # cubic cells: 20n along, 2n across the width, n through the thickness
     bar = structured_bar(CL, CW, CH, 20 * n, 2 * n, n)
     clamp = np.flatnonzero(bar.nodes[:, 0] < 1e-12)
-    md = FEMModel(bar, Material(youngs=CE, poisson=0.0, density=CRHO, model="corotated"), clamp, rayleigh_alpha=0,
+    md = FEMModel(bar, Material(youngs_pa=CE, poisson_ratio=0.0, density_kg_m3=CRHO, model="corotated"), clamp,
+                  rayleigh_alpha=0,
                   rayleigh_beta=0)
-    b = modal_basis(md.rest_stiffness(), sp.diags(md.free_masses), count=3)
+    b = modal_basis(md.rest_stiffness(), sp.diags(md.free_masses), count=3, rayleigh_alpha=0.0, rayleigh_beta=0.0)
     direction = np.abs(b.vectors.reshape(len(md.free), 3, -1)).sum(axis=0).argmax(axis=0)  # dominant axis per mode
     return b.frequencies_hz, direction
 

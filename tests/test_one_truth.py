@@ -107,12 +107,12 @@ def test_a_youngs_modulus_in_kpa_gets_a_warning():
     from kdfem.fem.materials import Material, MaterialUnitsWarning
 
     with pytest.warns(MaterialUnitsWarning, match="3 Pa is outside 100–1e.09 Pa"):
-        Material(youngs=3.0)
+        Material(youngs_pa=3.0)
     with pytest.warns(MaterialUnitsWarning):
-        Material(youngs=5e10)
+        Material(youngs_pa=5e10)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        Material(youngs=3e3)
+        Material(youngs_pa=3e3)
 
 
 def test_subset_constraint_with_a_group_name_says_where_indices_come_from():

@@ -17,20 +17,22 @@ from .system import HatSystem
 __all__ = ["DEFAULT_MATERIAL", "DEFAULT_ALPHA", "DEFAULT_BETA", "DEFAULT_EDGE_LENGTH_FAC", "DEFAULT_EPSILON",
            "hat_tetmesh", "default_hat_system"]
 
-#: A floppy knitted hat: E = 3 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean.
-DEFAULT_MATERIAL = Material(youngs=3.0e3)
+#: A floppy knitted hat: E = 3 kPa, ν = 0.3, ρ = 150 kg/m³, stable Neo-Hookean (``Material()``, the defaults
+#: :data:`~kdfaces.defaults.YOUNGS_PA`, :data:`~kdfaces.defaults.POISSON_RATIO`,
+#: :data:`~kdfaces.defaults.DENSITY_KG_M3`).
+DEFAULT_MATERIAL = Material()
 #: Rayleigh damping C = αM + βK: α [1/s] (relative to the head), β [s]; the tip swing decays within ~1 s.
 DEFAULT_ALPHA, DEFAULT_BETA = defaults.RAYLEIGH_ALPHA, defaults.RAYLEIGH_BETA
 #: pytetwild target edge length / bbox diagonal and envelope: a coarse (~1k tet) simulation mesh.
-DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = defaults.HAT_EDGE_LENGTH_FAC, defaults.HAT_ENVELOPE_FAC
+DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = defaults.TET_EDGE_LENGTH_FAC, defaults.TET_ENVELOPE_FAC
 #: The default hat's tets, built once by ``scripts/build_hat_mesh.py`` (pytetwild is not repeatable run to run, so
 #: every machine simulates the same hat); used whenever the surface and settings match its content key.
 SHIPPED_HAT_TETS = DEFAULT_RIG_PATH.parent / "hat_tets.npz"
 
 
 @renamed_kwargs(epsilon="envelope_fac")
-def hat_tetmesh(*, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
-                envelope_fac: float = defaults.HAT_ENVELOPE_FAC, coarsen: bool = True,
+def hat_tetmesh(*, edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC,
+                envelope_fac: float = defaults.TET_ENVELOPE_FAC, coarsen: bool = defaults.TET_COARSEN,
                 params: HatParams | None = None, cache_dir=None):
     """(surface trimesh, TetMesh, seconds spent in pytetwild (0 when read from ``cache_dir``)).
 
@@ -49,11 +51,12 @@ def hat_tetmesh(*, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
 
 @renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta", attach_distance="attach_distance_m",
                 epsilon="envelope_fac")
-def default_hat_system(rig, *, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
-                       envelope_fac: float = defaults.HAT_ENVELOPE_FAC, coarsen: bool = True,
+def default_hat_system(rig, *, edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC,
+                       envelope_fac: float = defaults.TET_ENVELOPE_FAC, coarsen: bool = defaults.TET_COARSEN,
                        material: Material | None = None, rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA,
-                       rayleigh_beta: float = defaults.RAYLEIGH_BETA, attach_distance_m: float = 0.02,
-                       cache_dir=None, device: str = "cpu", params: HatParams | None = None, threads: int = 1,
+                       rayleigh_beta: float = defaults.RAYLEIGH_BETA,
+                       attach_distance_m: float = defaults.ATTACH_DISTANCE_M, cache_dir=None, device: str = "cpu",
+                       params: HatParams | None = None, threads: int = defaults.THREADS,
                        reduced: bool = False, modes: int = 24):
     """(HatSystem, surface trimesh, tetrahedralisation seconds) for the default hat on ``rig``'s neutral head.
 

@@ -43,6 +43,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs, warn_renamed
 from kdfaces.errors import SimulationBlowUpError
 
 from . import kernels
@@ -187,18 +189,23 @@ def _factor_spd(A: sp.spmatrix) -> spla.SuperLU:
 class ImplicitEuler:
     """Backward-Euler stepper minimising the incremental potential (see module docstring).
 
-    ``tol`` [m]: convergence on the position update max|Δv|·h; ``max_iter``: iterations before a step fails;
+    ``step_s`` [s]: the step h; ``tol_m`` [m]: convergence on the position update max|Δv|·h; ``max_iter``:
+    iterations before a step fails;
     ``slow`` [-]: contraction ratio ``|Δv_k|/|Δv_k−1|`` above which a member refactors its own warped matrix (also
     after a backtracked line search or ``force_it`` iterations; at most once per member and step);
     ``threads``: batch members are split over this many threads of one persistent pool (Warp launches and SuperLU
     release the GIL). ``reference``: positions (N, 3) [m] whose PSD-projected tangent stiffness, rotated per node
     from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node;
-    attribute ``nodal`` = False rotates it by the bone instead, as before).
+    attribute ``nodal`` = False rotates it by the bone instead, as before). The names ``h`` and ``tol`` (keyword
+    and attribute) still work for one release, with a :class:`DeprecationWarning`.
     """
 
-    def __init__(self, model: FEMModel, h: float, *, tol: float = 1e-6, max_iter: int = 60, slow: float = 0.7,
-                 force_it: int = 12, threads: int = 1, reference: np.ndarray | None = None):
-        self.model, self.h, self.tol, self.max_iter = model, float(h), float(tol), int(max_iter)
+    @renamed_kwargs(h="step_s", tol="tol_m")
+    def __init__(self, model: FEMModel, step_s: float, *, tol_m: float = defaults.NEWTON_TOL_M, max_iter: int = 60,
+                 slow: float = 0.7, force_it: int = 12, threads: int = defaults.THREADS,
+                 reference: np.ndarray | None = None):
+        h = step_s
+        self.model, self.step_s, self.tol_m, self.max_iter = model, float(h), float(tol_m), int(max_iter)
         self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
         self.c_m, self.c_k = 1 + h * model.rayleigh_alpha, h * h + h * model.rayleigh_beta
@@ -220,6 +227,18 @@ class ImplicitEuler:
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="kdfem-step") if self.threads > 1 else None
         self._workspaces: dict[tuple[int, int], _Workspace] = {}
         self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
+
+    @property
+    def h(self) -> float:
+        """Deprecated name of :attr:`step_s`."""
+        warn_renamed("ImplicitEuler", "h", "step_s")
+        return self.step_s
+
+    @property
+    def tol(self) -> float:
+        """Deprecated name of :attr:`tol_m`."""
+        warn_renamed("ImplicitEuler", "tol", "tol_m")
+        return self.tol_m
 
     def workspace(self, k: int, slot: int = 0) -> _Workspace:
         """The persistent :class:`_Workspace` for ``k`` members used by thread ``slot``."""
@@ -244,7 +263,7 @@ class ImplicitEuler:
     def _potential(self, xn, vn, v1, Rn, Aw, cw, slot: int = 0):
         """E (B,) [J], gradient r on the free nodes (B, F, 3) [N·s] and min det F (B,) at velocities v1 (B, N, 3)."""
         self.evaluations += 1
-        return self.workspace(len(xn), slot).potential(xn + self.h * v1, v1, vn, Rn, Aw, cw, self.h)
+        return self.workspace(len(xn), slot).potential(xn + self.step_s * v1, v1, vn, Rn, Aw, cw, self.step_s)
 
     def _solve(self, lu, state, idx, r, R):
         """Δv = −P⁻¹ r for members ``idx`` (their gradients r (k, F, 3); rotations R: the bone's (k, 3, 3) or the
@@ -266,7 +285,7 @@ class ImplicitEuler:
 
     def _iterate(self, lu, state, members, v1, Rn, Aw, cw, R, where, slot: int = 0):
         """Minimise E for the batch members ``members`` (indices) in place on v1; returns iterations used."""
-        h, fr = self.h, self.model.free
+        h, fr = self.step_s, self.model.free
         xn, vn = state.x[members], state.v[members]
         v = v1[members]
         Rm, Awm, cwm = Rn[members], Aw[members], cw[members]
@@ -286,7 +305,8 @@ class ImplicitEuler:
             it += 1
             if it > self.max_iter:
                 raise SimulationBlowUpError(f"{where}: Newton did not converge in {self.max_iter} iterations "
-                                            f"(last position update {h * prev[active].max():.3g} m > tol {self.tol} m)")
+                                            f"(last position update {h * prev[active].max():.3g} m > tol_m "
+                                            f"{self.tol_m} m)")
             a = active
             ga = members[a]
             d = self._solve(lu, state, ga, r[a], R[a])
@@ -294,7 +314,7 @@ class ImplicitEuler:
             if not np.isfinite(d).all():
                 raise SimulationBlowUpError(f"{where}: non-finite Newton update in iteration {it}")
             # an update below the tolerance is the last one: take it whole, without evaluating E again
-            final = h * size < self.tol
+            final = h * size < self.tol_m
             for j in np.flatnonzero(final):
                 v[a[j], fr] += d[j]
             search = np.flatnonzero(~final)
@@ -308,7 +328,7 @@ class ImplicitEuler:
                 sel = a[todo]
                 Et, rt, dt, _ = self._potential(xn[sel], vn[sel], vt, Rm[sel], Awm[sel], cwm[sel], slot)
                 ok = (dt > 0) & (Et <= E[sel] + 1e-4 * t[todo] * slope[todo] + 1e-12 * scale[sel])
-                ok |= (dt > 0) & (h * t[todo] * size[todo] < self.tol)  # below round-off of E: accept
+                ok |= (dt > 0) & (h * t[todo] * size[todo] < self.tol_m)  # below round-off of E: accept
                 done = todo[ok]
                 v[a[done]] = vt[ok]
                 E_new[done], r_new[done], det_new[done] = Et[ok], rt[ok], dt[ok]
@@ -319,7 +339,7 @@ class ImplicitEuler:
                     raise SimulationBlowUpError(f"{where}: line search found no decrease of the incremental "
                                                 f"potential in batch member {b} (inversion or blow-up)")
             E[a], r[a], detF[a] = E_new, r_new, det_new
-            conv = h * size * t < self.tol
+            conv = h * size * t < self.tol_m
             ratio = size / prev[a]
             prev[a] = size
             # refactor once per step where the iteration contracts slowly, and again every force_it iterations
@@ -337,7 +357,7 @@ class ImplicitEuler:
     def step(self, state: FEMState, G1: np.ndarray, dG1: np.ndarray, *, where: str = "hat") -> None:
         """Advance every member to t + h in place; ``G1``, ``dG1`` (B, 4, 4): bone transform and its rate at t + h
         (attached nodes follow x_a = G1·X_a, v_a = Ġ1·X_a)."""
-        md, h = self.model, self.h
+        md, h = self.model, self.step_s
         att = md.attached
         B = len(state.x)
         if len(state.precond) != B:
@@ -386,7 +406,8 @@ def static_equilibrium(model: FEMModel, *, G: np.ndarray | None = None, rtol: fl
     g = np.asarray(model.gravity, dtype=np.float64)
     zero = np.zeros_like(x)[None]
     # the residual cannot fall below the round-off of the elastic forces, ~1e-16·E·(edge length)² per term
-    tol = max(rtol * float(np.abs(m * g).max()), 1e-11 * model.material.youngs * float(np.mean(model.vol)) ** (2 / 3))
+    tol = max(rtol * float(np.abs(m * g).max()),
+              1e-11 * model.material.youngs_pa * float(np.mean(model.vol)) ** (2 / 3))
 
     def evaluate(xx, s):
         f, e, detF = model.forces(xx[None], zero, damping=False)

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs, warn_renamed
 from kdfaces.errors import KDInputError
 
 __all__ = ["Material", "MODELS", "MaterialUnitsWarning", "PLAUSIBLE_YOUNGS_PA"]
@@ -33,42 +35,64 @@ class MaterialUnitsWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Material:
-    """An isotropic elastic material.
+    """An isotropic elastic material; the defaults (:mod:`kdfaces.defaults`) are a floppy knitted hat.
 
     Attributes:
-        youngs: Young's modulus E [Pa].
-        poisson: Poisson ratio ν [-], in (−1, 0.5).
-        density: mass density ρ [kg/m³].
+        youngs_pa: Young's modulus E [Pa].
+        poisson_ratio: Poisson ratio ν [-], in (−1, 0.5).
+        density_kg_m3: mass density ρ [kg/m³].
         model: ``"corotated"`` or ``"neohookean"``.
+
+    The names ``youngs``, ``poisson`` and ``density`` (keyword and attribute) still work for one release, with a
+    :class:`DeprecationWarning`.
     """
 
-    youngs: float = 3.0e4
-    poisson: float = 0.3
-    density: float = 150.0
-    model: str = "neohookean"
+    youngs_pa: float = defaults.YOUNGS_PA
+    poisson_ratio: float = defaults.POISSON_RATIO
+    density_kg_m3: float = defaults.DENSITY_KG_M3
+    model: str = defaults.MATERIAL_MODEL
 
     def __post_init__(self):
-        if not (np.isfinite(self.youngs) and self.youngs > 0):
-            raise KDInputError(f"material youngs: expected a positive modulus in Pa, got {self.youngs}")
+        if not (np.isfinite(self.youngs_pa) and self.youngs_pa > 0):
+            raise KDInputError(f"material youngs_pa: expected a positive modulus in Pa, got {self.youngs_pa}")
         lo, hi = PLAUSIBLE_YOUNGS_PA
-        if not lo <= self.youngs <= hi:  # kPa or MPa typed where Pa are meant
+        if not lo <= self.youngs_pa <= hi:  # kPa or MPa typed where Pa are meant
             import warnings
 
-            unit = "kPa (×1e3)" if self.youngs < lo else "Pa, not GPa"
-            warnings.warn(f"material youngs: {self.youngs:g} Pa is outside {lo:g}–{hi:g} Pa, soft foam to hard "
-                          f"plastic; Young's modulus is in Pa (was it meant in {unit}?)", MaterialUnitsWarning,
-                          stacklevel=3)
-        if not (-1.0 < self.poisson < 0.5):
-            raise KDInputError(f"material poisson: expected a ratio in (-1, 0.5), got {self.poisson}")
-        if not (np.isfinite(self.density) and self.density > 0):
-            raise KDInputError(f"material density: expected a positive density in kg/m³, got {self.density}")
+            unit = "kPa (×1e3)" if self.youngs_pa < lo else "Pa, not GPa"
+            warnings.warn(f"material youngs_pa: {self.youngs_pa:g} Pa is outside {lo:g}–{hi:g} Pa, soft foam to "
+                          f"hard plastic; Young's modulus is in Pa (was it meant in {unit}?)", MaterialUnitsWarning,
+                          stacklevel=4)
+        if not (-1.0 < self.poisson_ratio < 0.5):
+            raise KDInputError(f"material poisson_ratio: expected a ratio in (-1, 0.5), got {self.poisson_ratio}")
+        if not (np.isfinite(self.density_kg_m3) and self.density_kg_m3 > 0):
+            raise KDInputError(f"material density_kg_m3: expected a positive density in kg/m³, "
+                               f"got {self.density_kg_m3}")
         if self.model not in MODELS:
             raise KDInputError(f"material model: expected one of {sorted(MODELS)}, got {self.model!r}")
 
     @property
+    def youngs(self) -> float:
+        """Deprecated name of :attr:`youngs_pa`."""
+        warn_renamed("Material", "youngs", "youngs_pa")
+        return self.youngs_pa
+
+    @property
+    def poisson(self) -> float:
+        """Deprecated name of :attr:`poisson_ratio`."""
+        warn_renamed("Material", "poisson", "poisson_ratio")
+        return self.poisson_ratio
+
+    @property
+    def density(self) -> float:
+        """Deprecated name of :attr:`density_kg_m3`."""
+        warn_renamed("Material", "density", "density_kg_m3")
+        return self.density_kg_m3
+
+    @property
     def lame(self) -> tuple[float, float]:
         """Linear-elastic Lamé parameters (μ, λ) [Pa]."""
-        E, nu = self.youngs, self.poisson
+        E, nu = self.youngs_pa, self.poisson_ratio
         return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
     @property
@@ -79,3 +103,7 @@ class Material:
             return mu, lam, 0.0
         lam_s = lam + mu
         return mu, lam_s, 1.0 + mu / lam_s
+
+
+Material.__init__ = renamed_kwargs(youngs="youngs_pa", poisson="poisson_ratio",
+                                   density="density_kg_m3")(Material.__init__)

@@ -74,7 +74,7 @@ class FEMModel:
         if (vol <= 0).any():
             raise KDInputError("mesh: tets must have positive rest volume (use kdfem.geometry.tetmesh to build meshes)")
         self.Dminv, self.vol = Dminv, vol
-        self.masses = lumped_masses(n, self.mesh.tets, vol, self.material.density)
+        self.masses = lumped_masses(n, self.mesh.tets, vol, self.material.density_kg_m3)
         dof_map = np.full(3 * n, -1, dtype=np.int64)
         dof_map[(3 * self.free[:, None] + np.arange(3)).ravel()] = np.arange(3 * len(self.free))
         self.pattern = SparsePattern(self.mesh.tets, dof_map)

@@ -44,6 +44,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError
 
 from ..modal.analysis import modal_basis
@@ -278,7 +279,7 @@ class ReducedHatSystem(HatSystem):
 
     def full(self) -> HatSystem:
         """The full FEM :class:`HatSystem` of the same model (for comparisons)."""
-        return HatSystem(self.model, embedding=self.embedding, tol=self.tol, threads=self.threads, joint=self.joint)
+        return HatSystem(self.model, embedding=self.embedding, tol_m=self.tol_m, threads=self.threads, joint=self.joint)
 
     # --- KD protocol -------------------------------------------------------------------------------------------
     #: the plain protocol loop (prepare, initial_state, step, observe): a reduced window is a few dense products
@@ -351,3 +352,6 @@ class ReducedHatSystem(HatSystem):
                           float(state.step_s), q, q_prev, wp.empty((B, r), dtype=wp.float64, device=d),
                           wp.empty((B, r), dtype=wp.float64, device=d)], device=d)
         state.q, state.q_prev, state.done = q.numpy(), q_prev.numpy(), state.steps
+
+
+ReducedHatSystem.__init__ = renamed_kwargs(tol="tol_m")(ReducedHatSystem.__init__)

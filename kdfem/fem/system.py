@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kdfaces.deprecation import warn_renamed
+from kdfaces import defaults
+from kdfaces.deprecation import renamed_kwargs, warn_renamed
 from kdfaces.errors import check_count
 from kdfaces.kd import step_windows
 from kdfaces.motion.ik import point_jacobian
@@ -37,8 +38,9 @@ _HEAD_CACHE_ROWS = 10_000
 class HatSystem:
     """A :class:`FEMModel` attached to the head joint of a face rig, as a KD system.
 
-    ``tol`` [m]: Newton tolerance on the position update; ``threads``: a batch of windows is split into this many
-    groups that run their whole windows in parallel threads (:meth:`run_windows`).
+    ``tol_m`` [m]: Newton tolerance on the position update; ``threads``: a batch of windows is split into this many
+    groups that run their whole windows in parallel threads (:meth:`run_windows`). The name ``tol`` (keyword and
+    attribute) still works for one release, with a :class:`DeprecationWarning`.
     The ``trajectory`` of the protocol methods is the joint-angle trajectory θ_K(t) that moves the head (a
     :class:`kdfaces.motion.JointTrajectory`, possibly corrected by IKD), or a face
     :class:`kdfaces.motion.KinematicTrajectory` standing for its joints
@@ -48,9 +50,15 @@ class HatSystem:
 
     model: FEMModel
     embedding: Embedding | None = None
-    tol: float = 1e-6
-    threads: int = 1
+    tol_m: float = defaults.NEWTON_TOL_M
+    threads: int = defaults.THREADS
     joint: str = "head"
+
+    @property
+    def tol(self) -> float:
+        """Deprecated name of :attr:`tol_m`."""
+        warn_renamed("HatSystem", "tol", "tol_m")
+        return self.tol_m
 
     def __post_init__(self):
         self.threads = check_count(self.threads, "threads")
@@ -64,7 +72,8 @@ class HatSystem:
         thread ``slot`` of :meth:`run_windows` (a stepper keeps its own workspaces)."""
         key = (round(float(step_s), 12), int(slot))
         if key not in self._steppers:
-            self._steppers[key] = ImplicitEuler(self.model, step_s, tol=self.tol, reference=self.rest_equilibrium)
+            self._steppers[key] = ImplicitEuler(self.model, step_s, tol_m=self.tol_m, threads=1,
+                                                 reference=self.rest_equilibrium)
         return self._steppers[key]
 
     def run_windows(self, trajectory, start_times, steps: int, step_s: float, progress=None) -> np.ndarray:
@@ -240,10 +249,10 @@ class HatSystem:
         acc = ddG[:, :3, :3] @ origin + ddG[:, :3, 3]
         omega_max = float(np.linalg.norm(wdot, axis=1).max()) * h
         a_max = float(np.linalg.norm(acc, axis=1).max())
-        an = analyse_model(self.model, origin, omega_max=omega_max, v_max=a_max * h, epsilon_m=epsilon_m)
+        an = analyse_model(self.model, origin, omega_max_radps=omega_max, v_max_mps=a_max * h, epsilon_m=epsilon_m)
         w = an.window
         return WindowEstimate(window_s=max(float(w.window_s), h), epsilon_m=float(w.epsilon_m),
-                              acceleration_max=a_max, initial_speed=float(w.qdot1), regime=str(w.regime))
+                              acceleration_max_mps2=a_max, initial_speed_mps=float(w.qdot1), regime=str(w.regime))
 
     def adaptive_windows(self, trajectory, times=None, *, step_s: float | None = None,
                          epsilon_m: float | None = None, start_s: float | None = None):
@@ -262,3 +271,6 @@ class HatSystem:
         if self.embedding is None:
             return x
         return self.embedding.apply(self.model.mesh, x)
+
+
+HatSystem.__init__ = renamed_kwargs(tol="tol_m")(HatSystem.__init__)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kdfaces.deprecation import renamed_kwargs, warn_renamed
 from kdfaces.errors import KDInputError
 
 __all__ = ["HatParams", "hat_profile", "christmas_hat"]
@@ -21,37 +22,81 @@ class HatParams:
     """Hat geometry. Lengths in metres, angles in radians.
 
     Attributes:
-        height: cone length from the brim plane to the tip [m].
-        radius: inner radius of the opening (sits on the head) [m].
-        thickness: wall thickness of the cone [m].
-        brim_width: how far the brim band sticks out beyond the cone wall [m].
-        brim_height: height of the brim band [m].
+        height_m: cone length from the brim plane to the tip [m].
+        radius_m: inner radius of the opening (sits on the head) [m].
+        thickness_m: wall thickness of the cone [m].
+        brim_width_m: how far the brim band sticks out beyond the cone wall [m].
+        brim_height_m: height of the brim band [m].
         tilt: backward lean of the cone axis about +x [rad] (tip towards −z).
-        base_center: centre of the opening on the default head (x, y, z) [m].
+        base_center_m: centre of the opening on the default head (x, y, z) [m].
         segments: divisions around the axis; rings: divisions along the cone.
+
+    The names without ``_m`` (``height``, ``radius``, ``thickness``, ``brim_width``, ``brim_height``,
+    ``base_center``; keyword and attribute) still work for one release, with a :class:`DeprecationWarning`.
     """
 
-    height: float = 0.30
-    radius: float = 0.088
-    thickness: float = 0.012
-    brim_width: float = 0.012
-    brim_height: float = 0.025
+    height_m: float = 0.30
+    radius_m: float = 0.088
+    thickness_m: float = 0.012
+    brim_width_m: float = 0.012
+    brim_height_m: float = 0.025
     tilt: float = 0.35
-    base_center: tuple[float, float, float] = (0.0, 0.765, 0.055)
+    base_center_m: tuple[float, float, float] = (0.0, 0.765, 0.055)
     segments: int = 48
     rings: int = 24
 
     def __post_init__(self):
-        for name in ("height", "radius", "thickness", "brim_width", "brim_height"):
+        for name in ("height_m", "radius_m", "thickness_m", "brim_width_m", "brim_height_m"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise KDInputError(f"hat {name}: expected a positive length in metres, got {v}")
-        if self.thickness >= self.radius:
-            raise KDInputError(f"hat thickness: must be below the radius {self.radius} m, got {self.thickness}")
-        if self.brim_height >= 0.5 * self.height:
-            raise KDInputError(f"hat brim_height: must be below half the height {self.height} m")
+        if self.thickness_m >= self.radius_m:
+            raise KDInputError(f"hat thickness_m: must be below the radius {self.radius_m} m, got {self.thickness_m}")
+        if self.brim_height_m >= 0.5 * self.height_m:
+            raise KDInputError(f"hat brim_height_m: must be below half the height {self.height_m} m")
         if self.segments < 8 or self.rings < 4:
             raise KDInputError("hat segments/rings: expected at least 8 segments and 4 rings")
+
+    @property
+    def height(self):
+        """Deprecated name of :attr:`height_m`."""
+        warn_renamed("HatParams", "height", "height_m")
+        return self.height_m
+
+    @property
+    def radius(self):
+        """Deprecated name of :attr:`radius_m`."""
+        warn_renamed("HatParams", "radius", "radius_m")
+        return self.radius_m
+
+    @property
+    def thickness(self):
+        """Deprecated name of :attr:`thickness_m`."""
+        warn_renamed("HatParams", "thickness", "thickness_m")
+        return self.thickness_m
+
+    @property
+    def brim_width(self):
+        """Deprecated name of :attr:`brim_width_m`."""
+        warn_renamed("HatParams", "brim_width", "brim_width_m")
+        return self.brim_width_m
+
+    @property
+    def brim_height(self):
+        """Deprecated name of :attr:`brim_height_m`."""
+        warn_renamed("HatParams", "brim_height", "brim_height_m")
+        return self.brim_height_m
+
+    @property
+    def base_center(self):
+        """Deprecated name of :attr:`base_center_m`."""
+        warn_renamed("HatParams", "base_center", "base_center_m")
+        return self.base_center_m
+
+
+HatParams.__init__ = renamed_kwargs(height="height_m", radius="radius_m", thickness="thickness_m",
+                                    brim_width="brim_width_m", brim_height="brim_height_m",
+                                    base_center="base_center_m")(HatParams.__init__)
 
 
 def hat_profile(p: HatParams) -> np.ndarray:
@@ -59,16 +104,16 @@ def hat_profile(p: HatParams) -> np.ndarray:
 
     The first and last points lie on the axis (r = 0): the inner apex, and the outer apex (tip) above it.
     """
-    H, r_in, t = p.height, p.radius, p.thickness
+    H, r_in, t = p.height_m, p.radius_m, p.thickness_m
     r_out = r_in + t
     s_in_apex = H - 2.5 * t  # inner cone closes below the tip: the last 2.5 t are solid
     s = np.linspace(0.0, 1.0, p.rings + 1)
     # outer cone r_out(s) from the brim top up to the apex, slightly concave (a drooping Christmas hat)
-    s_out = p.brim_height + (H - p.brim_height) * s
+    s_out = p.brim_height_m + (H - p.brim_height_m) * s
     r_cone_out = r_out * (1 - (s_out / H)) ** 1.15
     s_inn = s_in_apex * s
     r_cone_in = r_in * (1 - s_inn / s_in_apex) ** 1.15
-    brim = [(r_in, 0.0), (r_out + p.brim_width, 0.0), (r_out + p.brim_width, p.brim_height)]
+    brim = [(r_in, 0.0), (r_out + p.brim_width_m, 0.0), (r_out + p.brim_width_m, p.brim_height_m)]
     outer = list(zip(r_cone_out, s_out))  # ends at (0, H)
     inner = list(zip(r_cone_in[::-1], s_inn[::-1]))  # starts at (0, s_in_apex), ends at (r_in, 0)
     prof = inner[:-1] + brim + outer  # inner apex → down the inside → brim → up the outside → tip
@@ -108,7 +153,7 @@ def christmas_hat(params: HatParams | None = None):
         f = f[:, ::-1].copy()
     c, s = np.cos(p.tilt), np.sin(p.tilt)
     rot = np.array([[1.0, 0, 0], [0, c, s], [0, -s, c]])  # about +x, tip leans to −z
-    v = v @ rot.T + np.asarray(p.base_center)
+    v = v @ rot.T + np.asarray(p.base_center_m)
     mesh = trimesh.Trimesh(v, f, process=False)
     if not mesh.is_watertight or mesh.volume <= 0:
         raise KDInputError("hat: the generated surface is not closed; check the parameters")

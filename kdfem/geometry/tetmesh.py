@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
 from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError, check_finite
 
@@ -204,15 +205,17 @@ def _pytetwild(v: np.ndarray, f: np.ndarray, *, edge_length_fac: float, envelope
 
 
 @renamed_kwargs(epsilon="envelope_fac")
-def tetrahedralize(vertices, faces, *, edge_length_fac: float = 0.05, where: str = "surface",
-                   optimize: bool = True, envelope_fac: float = 1e-3, coarsen: bool = False) -> TetMesh:
+def tetrahedralize(vertices, faces, *, edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC, where: str = "surface",
+                   optimize: bool = True, envelope_fac: float = defaults.TET_ENVELOPE_FAC,
+                   coarsen: bool = defaults.TET_COARSEN) -> TetMesh:
     """Tetrahedralise a closed surface (V, 3) [m], (F, 3) with pytetwild; orientation fixed, zero volumes rejected.
 
     ``edge_length_fac`` is the target edge length as a fraction of the bounding-box diagonal (smaller → more tets);
     ``envelope_fac`` the envelope (allowed surface deviation) as a fraction of the diagonal: a thin-walled surface
     needs small tets to stay within a tight envelope, so a coarse simulation mesh wants a loose envelope and
     ``coarsen`` (the fine surface is then embedded, :func:`embed_surface`, like the paper's coarse cubes, Fig. 6).
-    pytetwild runs in a child process in a temporary folder, so nothing is written where the caller works.
+    The defaults are that coarse simulation mesh (the hat's); (0.06, 1e-3, ``coarsen=False``) follows the surface
+    tightly. pytetwild runs in a child process in a temporary folder, so nothing is written where the caller works.
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
@@ -320,9 +323,10 @@ def embed_surface(mesh: TetMesh, points: np.ndarray) -> Embedding:
     return Embedding(tet=cand[rows, best].astype(np.int64), weights=w)
 
 
-def structured_bar(length: float, width: float, height: float, nx: int, ny: int, nz: int) -> TetMesh:
+@renamed_kwargs(length="length_m", width="width_m", height="height_m")
+def structured_bar(length_m: float, width_m: float, height_m: float, nx: int, ny: int, nz: int) -> TetMesh:
     """A box [0, L]×[0, W]×[0, H] [m] split into nx·ny·nz cubes of 6 tets each (for verification tests)."""
-    gx, gy, gz = (np.linspace(0, s, n + 1) for s, n in ((length, nx), (width, ny), (height, nz)))
+    gx, gy, gz = (np.linspace(0, s, n + 1) for s, n in ((length_m, nx), (width_m, ny), (height_m, nz)))
     X, Y, Z = np.meshgrid(gx, gy, gz, indexing="ij")
     nodes = np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1)
     idx = np.arange(len(nodes)).reshape(nx + 1, ny + 1, nz + 1)

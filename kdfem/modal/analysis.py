@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from kdfaces import defaults
 from kdfaces.deprecation import renamed_kwargs
 from kdfaces.errors import KDInputError
 from kdfaces.window import damping_regime, window_1d
@@ -73,8 +74,10 @@ class ModalBasis:
 
 
 @renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta")
-def modal_basis(K, M, *, count: int = 6, rayleigh_alpha: float = 0.0, rayleigh_beta: float = 0.0) -> ModalBasis:
-    """Lowest ``count`` modes of K u = λ M u (K (d, d) stiffness [N/m], M (d, d) mass [kg], attached DOFs removed).
+def modal_basis(K, M, *, count: int = 6, rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA,
+                rayleigh_beta: float = defaults.RAYLEIGH_BETA) -> ModalBasis:
+    """Lowest ``count`` modes of K u = λ M u (K (d, d) stiffness [N/m], M (d, d) mass [kg], attached DOFs removed),
+    with Rayleigh damping C = αM + βK (``rayleigh_alpha`` α [1/s], ``rayleigh_beta`` β [s]; 0 and 0: undamped).
 
     Uses ``eigsh`` in shift-invert mode at σ = 0 (K must be positive definite: at least one attached node).
     """
@@ -139,14 +142,16 @@ def modal_activation(basis: ModalBasis, M, Gamma, mode: int = 0) -> np.ndarray:
     return (U @ (M @ Gamma)) / basis.mass[mode]
 
 
-def worst_case_spatial_velocity(activation, *, omega_max: float, v_max: float) -> np.ndarray:
-    """The ϕ = (ω, v) with |ω| = ω_max and |v| = v_max along the axes that excite mode 1 most (eq. 30), for the
-    mode's ``activation`` (6,)."""
+@renamed_kwargs(omega_max="omega_max_radps", v_max="v_max_mps")
+def worst_case_spatial_velocity(activation, *, omega_max_radps: float = defaults.OMEGA_MAX_RADPS,
+                                v_max_mps: float = defaults.V_MAX_MPS) -> np.ndarray:
+    """The ϕ = (ω, v) with |ω| = ω_max (``omega_max_radps`` [rad/s]) and |v| = v_max (``v_max_mps`` [m/s]) along
+    the axes that excite mode 1 most (eq. 30), for the mode's ``activation`` (6,)."""
     h = np.asarray(activation, dtype=np.float64)
     phi = np.zeros(6)
     a, b = int(np.argmax(np.abs(h[:3]))), 3 + int(np.argmax(np.abs(h[3:])))
-    phi[a] = omega_max * np.sign(h[a] or 1.0)
-    phi[b] = v_max * np.sign(h[b] or 1.0)
+    phi[a] = omega_max_radps * np.sign(h[a] or 1.0)
+    phi[b] = v_max_mps * np.sign(h[b] or 1.0)
     return phi
 
 
@@ -181,15 +186,17 @@ class ModalWindow:
     activation: np.ndarray
 
 
-@renamed_kwargs(epsilon="epsilon_m")
-def modal_window(basis: ModalBasis, activation, *, epsilon_m: float, omega_max: float = 4.0, v_max: float = 2.0
+@renamed_kwargs(epsilon="epsilon_m", omega_max="omega_max_radps", v_max="v_max_mps")
+def modal_window(basis: ModalBasis, activation, *, epsilon_m: float,
+                 omega_max_radps: float = defaults.OMEGA_MAX_RADPS, v_max_mps: float = defaults.V_MAX_MPS
                  ) -> ModalWindow:
     """δ from mode 1: q̇_1(0) = h_ωmax·ω_max + h_vmax·v_max (eq. 30) for its ``activation`` h (6,), bone speeds
-    ``omega_max`` [rad/s] and ``v_max`` [m/s], then the §5.2 branch of its regime for ``epsilon_m`` [m]."""
+    ``omega_max_radps`` [rad/s] and ``v_max_mps`` [m/s], then the §5.2 branch of its regime for ``epsilon_m`` [m]."""
     h = np.asarray(activation, dtype=np.float64)
     epsilon = epsilon_m
+    omega_max, v_max = omega_max_radps, v_max_mps
     if not (omega_max >= 0 and v_max >= 0):
-        raise KDInputError(f"bone speeds: expected ω_max, v_max ≥ 0, got {omega_max}, {v_max}")
+        raise KDInputError(f"bone speeds: expected omega_max_radps, v_max_mps ≥ 0, got {omega_max}, {v_max}")
     m, k, c = basis.mass[0], basis.stiffness[0], basis.damping[0]
     if c <= 0:
         raise KDInputError("modal window: mode 1 is undamped (α = β = 0), so it never settles; set Rayleigh α or β")
@@ -224,11 +231,14 @@ class ModalAnalysis:
     free: np.ndarray
 
 
-def analyse_model(model, origin, *, count: int = 6, omega_max: float = 4.0, v_max: float = 2.0,
-                  G_rest: np.ndarray | None = None, epsilon_m: float | None = None) -> ModalAnalysis:
+@renamed_kwargs(omega_max="omega_max_radps", v_max="v_max_mps")
+def analyse_model(model, origin, *, count: int = 6, omega_max_radps: float = defaults.OMEGA_MAX_RADPS,
+                  v_max_mps: float = defaults.V_MAX_MPS, G_rest: np.ndarray | None = None,
+                  epsilon_m: float | None = None) -> ModalAnalysis:
     """§5.3 for a :class:`kdfem.fem.model.FEMModel`: K at rest and lumped M with the attached DOFs removed, the lowest
     ``count`` modes, Γ of the free nodes about the bone ``origin`` (3,) [m] (bone-frame coordinates; ``G_rest``
-    (4, 4): the bone's rest world transform, default identity), h, q̇_1(0) (eq. 30), ε = 0.001·d·√N (or
+    (4, 4): the bone's rest world transform, default identity), h, q̇_1(0) (eq. 30, bone speeds
+    ``omega_max_radps`` [rad/s], ``v_max_mps`` [m/s]), ε = 0.001·d·√N (or
     ``epsilon_m`` [m]) and δ."""
     K = model.rest_stiffness()
     M = sp.diags(model.free_masses)
@@ -238,8 +248,8 @@ def analyse_model(model, origin, *, count: int = 6, omega_max: float = 4.0, v_ma
     Gamma = gamma_matrix(nodes[model.free], origin)
     h = modal_activation(basis, M, Gamma)
     eps = perceptual_epsilon(nodes) if epsilon_m is None else float(epsilon_m)
-    win = modal_window(basis, h, epsilon_m=eps, omega_max=omega_max, v_max=v_max)
-    phi = worst_case_spatial_velocity(h, omega_max=omega_max, v_max=v_max)
+    win = modal_window(basis, h, epsilon_m=eps, omega_max_radps=omega_max_radps, v_max_mps=v_max_mps)
+    phi = worst_case_spatial_velocity(h, omega_max_radps=omega_max_radps, v_max_mps=v_max_mps)
     return ModalAnalysis(basis=basis, K=sp.csr_matrix(K), M=M, Gamma=Gamma, phi=phi, window=win,
                          diameter_m=object_diameter(nodes), nodes=model.mesh.num_nodes, tets=model.mesh.num_tets,
                          free=np.asarray(model.free))

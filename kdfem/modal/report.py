@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces.deprecation import renamed_kwargs
 from kdfaces.io.atomic import atomic_path
 from kdfaces.viz.figures import save_figure, subplots
 
@@ -253,7 +254,9 @@ def _sweep_note(run) -> str:
             "kick, so the error falls below ε at windows shorter than δ.")
 
 
-def write_all(out, run, *, mesh, surf_faces, source: str, attachment: str, omega_max: float, v_max: float) -> list:
+@renamed_kwargs(omega_max="omega_max_radps", v_max="v_max_mps")
+def write_all(out, run, *, mesh, surf_faces, source: str, attachment: str, omega_max_radps: float,
+              v_max_mps: float) -> list:
     """Figures and ``report.md`` of a :class:`kdfem.modal.window.WindowRun` in folder ``out``; returns the paths."""
     out = Path(out)
     an = run.analysis
@@ -272,7 +275,7 @@ def write_all(out, run, *, mesh, surf_faces, source: str, attachment: str, omega
         files.append(kd_error_figure(out / "kd_error_vs_window.png", s["times"], s["errors"], s["deviation"],
                                      delta=an.window.window_s, epsilon=an.window.epsilon_m))
         figs["kd_error"] = "kd_error_vs_window.png"
-    notes = {"source": source, "attachment": attachment, "omega_max": omega_max, "v_max": v_max,
+    notes = {"source": source, "attachment": attachment, "omega_max": omega_max_radps, "v_max": v_max_mps,
              "linear": _linear_note(run), "nonlinear": _nonlinear_note(run), "sweep": _sweep_note(run)}
     files.append(write_report(out / "report.md", run.result, figures=figs, notes=notes))
     return files

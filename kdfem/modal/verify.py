@@ -156,7 +156,7 @@ def nonlinear_response(model, v0, *, step_s: float, end_s: float, tol: float = 1
     v = np.zeros((1, *X.shape))
     v[0, md.free] = np.asarray(v0, dtype=np.float64).reshape(-1, 3)
     state = FEMState(x=X[None].copy(), v=v)
-    stepper = ImplicitEuler(md, h, tol=tol)
+    stepper = ImplicitEuler(md, h, tol_m=tol, threads=1)
     G, dG = np.eye(4)[None], np.zeros((1, 4, 4))
     n = int(np.ceil(t_end / h))
     norms, peak = np.zeros(n + 1), 0.0

@@ -65,18 +65,20 @@ class WindowRun:
 
 
 @renamed_kwargs(mesh_epsilon="envelope_fac")
-def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC,
-                envelope_fac: float | None = None, coarsen: bool = True, cache_dir=None):
+def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC,
+                envelope_fac: float = defaults.TET_ENVELOPE_FAC, coarsen: bool = defaults.TET_COARSEN,
+                cache_dir=None):
     """(TetMesh, surface vertices (V, 3) [m], faces (F, 3), description) of ``surface`` (a mesh file, or None for
-    the default hat). ``scale``: file units → metres; ``edge_length_fac``, ``envelope_fac``: pytetwild's target
-    edge length and envelope relative to the bounding-box diagonal. A non-closed surface or one enclosing no volume
-    raises :class:`KDInputError`."""
+    the default hat). ``scale``: file units → metres; ``edge_length_fac``, ``envelope_fac``, ``coarsen``:
+    pytetwild's target edge length and envelope relative to the bounding-box diagonal, and whether it coarsens, for
+    the hat and a user's mesh alike (the defaults: the hat demo's coarse simulation mesh; see
+    :func:`~kdfem.geometry.tetmesh.tetrahedralize`). A non-closed surface or one enclosing no volume raises
+    :class:`KDInputError`."""
     from ..fem.default_hat import hat_tetmesh
     from ..geometry.tetmesh import load_surface, tetrahedralize_cached
 
     if surface is None:  # by default the same coarse simulation mesh the hat demo uses
-        eps = defaults.HAT_ENVELOPE_FAC if envelope_fac is None else envelope_fac
-        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=eps, coarsen=coarsen,
+        surf, mesh, _ = hat_tetmesh(edge_length_fac=edge_length_fac, envelope_fac=envelope_fac, coarsen=coarsen,
                                     cache_dir=cache_dir)
         return mesh, np.asarray(surf.vertices), np.asarray(surf.faces), "the default hat"
     if not (np.isfinite(scale) and scale > 0):
@@ -89,7 +91,8 @@ def load_object(surface, *, scale: float = 1.0, edge_length_fac: float = default
     if not abs(vol) > 1e-9 * diag**3:
         raise KDInputError(f"{surface}: the surface encloses zero volume ({vol:.3g} m³); its tets would have zero "
                            "volume — expected a solid object")
-    mesh, _ = tetrahedralize_cached(v, f, edge_length_fac=edge_length_fac, envelope_fac=1e-3, coarsen=False,
+    mesh, _ = tetrahedralize_cached(v, f, edge_length_fac=edge_length_fac, envelope_fac=envelope_fac,
+                                    coarsen=coarsen,
                                     where=str(surface), cache_dir=cache_dir)
     if (mesh.volumes() <= 0).any():
         raise KDInputError(f"{surface}: tetrahedralisation produced zero-volume tets")
@@ -111,14 +114,17 @@ def _attach(nodes, head, *, distance, below):
 
 
 @renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta", attach_distance="attach_distance_m",
-                attach_below="attach_below_m", sweep_h="sweep_step_s", mesh_epsilon="envelope_fac")
-def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v_max: float = 2.0,
+                attach_below="attach_below_m", sweep_h="sweep_step_s", mesh_epsilon="envelope_fac",
+                omega_max="omega_max_radps", v_max="v_max_mps")
+def window_report(surface=None, *, out=None, rig=None, omega_max_radps: float = defaults.OMEGA_MAX_RADPS,
+                  v_max_mps: float = defaults.V_MAX_MPS,
                   rayleigh_alpha: float = defaults.RAYLEIGH_ALPHA, rayleigh_beta: float = defaults.RAYLEIGH_BETA,
-                  edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, envelope_fac: float | None = None,
-                  scale: float = 1.0, attach_distance_m: float = 0.02, attach_below_m: float | None = None,
-                  modes: int = 6, nonlinear: bool = True, sweep: bool = True, sweep_stride: int = 10,
-                  sweep_step_s: float = defaults.HAT_STEP_S, figures: bool = True, progress: bool = False,
-                  coarsen: bool = True, cache_dir=None) -> WindowRun:
+                  edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC,
+                  envelope_fac: float = defaults.TET_ENVELOPE_FAC,
+                  scale: float = 1.0, attach_distance_m: float = defaults.ATTACH_DISTANCE_M,
+                  attach_below_m: float | None = None, modes: int = 6, nonlinear: bool = True, sweep: bool = True,
+                  sweep_stride: int = 10, sweep_step_s: float = defaults.HAT_STEP_S, figures: bool = True,
+                  progress: bool = False, coarsen: bool = defaults.TET_COARSEN, cache_dir=None) -> WindowRun:
     """The modal window report of ``surface`` (a closed mesh file in file units × ``scale`` = metres; None = the
     default hat); see the module docstring.
 
@@ -126,7 +132,7 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
         out: folder for report.md, window.json and the figures (``figures=False``: window.json only); None writes
             nothing (the result is returned either way).
         rig: the face rig the object is attached to (default :func:`kdfaces.io.load_default_rig`).
-        omega_max, v_max: the bone's largest angular [rad/s] and linear [m/s] speed jump (eq. 30).
+        omega_max_radps, v_max_mps: the bone's largest angular [rad/s] and linear [m/s] speed jump (eq. 30).
         rayleigh_alpha, rayleigh_beta: Rayleigh damping α [1/s], β [s].
         edge_length_fac, envelope_fac, coarsen, cache_dir: tetrahedralisation (see :func:`load_object`).
         attach_distance_m: nodes within this distance of the head surface [m] are attached to the head joint;
@@ -179,7 +185,7 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
         done("assemble")
         sk = rig.skeleton
         origin = sk.positions[sk.index("head")] if attach_below is None else mesh.nodes[att].mean(axis=0)
-        an = analyse_model(model, origin, count=modes, omega_max=omega_max, v_max=v_max)
+        an = analyse_model(model, origin, count=modes, omega_max_radps=omega_max_radps, v_max_mps=v_max_mps)
         run.analysis = an
         done("eigsh")
         b, w = an.basis, an.window
@@ -217,7 +223,7 @@ def window_report(surface=None, *, out=None, rig=None, omega_max: float = 4.0, v
         from .report import write_all
 
         run.files = write_all(out, run, mesh=mesh, surf_faces=surf_faces, source=source, attachment=att_text,
-                              omega_max=omega_max, v_max=v_max)
+                              omega_max_radps=omega_max_radps, v_max_mps=v_max_mps)
         run.timings["report"] = time.perf_counter() - clock[0]
     import json
 
@@ -263,7 +269,7 @@ def _kd_sweep(rig, model, delta, *, stride: int, step_s: float) -> dict:
     from .verify import kd_error_sweep
 
     traj = KinematicTrajectory(rig, demo_animation())
-    system = HatSystem(model)
+    system = HatSystem(model, threads=1)  # as before THREADS = 2: the report's sweep numbers stay as they were
     start = traj.animation.start
     times = traj.animation.frame_times[::stride]
     times = start + np.round((times - start) / h) * h

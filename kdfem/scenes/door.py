@@ -86,8 +86,8 @@ class _Hat(_Table):
     density_kg_m3: Positive = 150.0
     rayleigh_alpha: NonNegative = defaults.RAYLEIGH_ALPHA
     rayleigh_beta: NonNegative = defaults.RAYLEIGH_BETA
-    edge_length_fac: Annotated[float, Field(gt=0, lt=1)] = defaults.HAT_EDGE_LENGTH_FAC
-    envelope_fac: Annotated[float, Field(gt=0, lt=0.1)] = defaults.HAT_ENVELOPE_FAC
+    edge_length_fac: Annotated[float, Field(gt=0, lt=1)] = defaults.TET_EDGE_LENGTH_FAC
+    envelope_fac: Annotated[float, Field(gt=0, lt=0.1)] = defaults.TET_ENVELOPE_FAC
     attach_distance_m: Positive = 0.02
 
 
@@ -267,7 +267,7 @@ def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
     mesh, _ = tetrahedralize_cached(v, f, edge_length_fac=h.edge_length_fac, envelope_fac=h.envelope_fac,
                                     coarsen=True, where="hat.surface", cache_dir=cache_dir,
                                     shipped=[SHIPPED_HAT_TETS])
-    material = Material(youngs=h.youngs_pa, poisson=h.poisson, density=h.density_kg_m3)
+    material = Material(youngs_pa=h.youngs_pa, poisson_ratio=h.poisson, density_kg_m3=h.density_kg_m3)
     att = attached_nodes(mesh.nodes, rig.neutral, distance_m=h.attach_distance_m)
     model = FEMModel(mesh, material, att, rayleigh_alpha=h.rayleigh_alpha, rayleigh_beta=h.rayleigh_beta)
     emb = embed_surface(mesh, v)

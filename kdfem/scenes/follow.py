@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
+
 __all__ = ["run_follow", "FOLLOW_SETTLE_S"]
 
 #: The neck's tension t̂ [s].
@@ -30,7 +32,8 @@ def _head_yaw_deg(trajectory, times) -> np.ndarray:
     return np.degrees(np.arctan2(R[:, 0, 2], R[:, 2, 2]))
 
 
-def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = 0.01, threads: int = 2) -> dict:
+def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = defaults.HAT_STEP_S,
+               threads: int = defaults.THREADS) -> dict:
     """Run the head follow-through demo; write filmstrip_follow.png, head_yaw.png and summary.json to ``out``.
     Returns the summary. ``threads``: CPU threads of the face's and the hat's KD batches."""
     from kdfaces.articulated import SkeletalSystem, kd_joint_trajectory, neck_chain_model

@@ -171,7 +171,7 @@ def test_steady_rotation_offset_is_centripetal_over_omega_squared():
 
 
 def test_gains_follow_on_the_beat_eq4():
-    kp, kd = gains_from_settle_time(0.5)
+    kp, kd = gains_from_settle_time(0.5, damping_ratio=1.0)  # eq. 4 as published: critically damped
     lam = 0.5 / (-1 / np.log(0.9))
     np.testing.assert_allclose([kp, kd], [1 / lam**2, 2 / lam])
     # critically damped: the error e(t) = (1 + t/λ) e^{−t/λ}; with ζ it keeps ω_n and scales damping

@@ -103,7 +103,7 @@ def test_automatic_window_uses_the_largest_acceleration_and_softest_gains():
     est = automatic_window(model, Swing(), step_s=h)
     grid = np.arange(51) * h
     acc = (25 * 0.02 * np.abs(np.sin(5 * grid))).max()
-    np.testing.assert_allclose(est.acceleration_max, acc, rtol=1e-12)
+    np.testing.assert_allclose(est.acceleration_max_mps2, acc, rtol=1e-12)
     np.testing.assert_allclose(est.epsilon_m, 1e-3 * 0.3)
     soft = window_1d(acc * h, model.kp[1], model.kd[1], epsilon_m=1e-3 * 0.3)
     np.testing.assert_allclose(est.window_s, soft)

@@ -254,8 +254,8 @@ class SkeletalSystem:
         engine.track(np.broadcast_to(q0, record.shape), np.zeros(record.shape), self.settle_time_s, record=record)
         moved = np.linalg.norm(self.points(record[:, 0]) - x0, axis=2).max(axis=1) > eps
         last = (int(np.flatnonzero(moved)[-1]) + 1) * hs if moved.any() else 0.0
-        return WindowEstimate(window_s=max(last, h), epsilon_m=eps, acceleration_max=float(acc.max()),
-                              initial_speed=float(acc.max() * h), regime="simulated (§5.1)")
+        return WindowEstimate(window_s=max(last, h), epsilon_m=eps, acceleration_max_mps2=float(acc.max()),
+                              initial_speed_mps=float(acc.max() * h), regime="simulated (§5.1)")
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .. import defaults
+from ..deprecation import renamed_kwargs
 from ..errors import KDInputError, check_finite
 
 __all__ = ["SETTLE_FRACTION", "time_constant", "gains_from_settle_time", "soft_tissue_settle_map"]
@@ -26,9 +28,10 @@ SOFT_TISSUE_SHAPES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "cheekPuff
                       "mouthStretchLeft", "mouthStretchRight", "cheekSquintLeft", "cheekSquintRight")
 
 
-def time_constant(settle_time, *, fraction: float = SETTLE_FRACTION) -> np.ndarray:
-    """λ = t̂/n with n = −1/ln(f) (On the Beat §4.1) for settle times ``settle_time`` [s] (scalar or (N,))."""
-    t = np.asarray(settle_time, dtype=np.float64)
+@renamed_kwargs(settle_time="settle_time_s")
+def time_constant(settle_time_s, *, fraction: float = SETTLE_FRACTION) -> np.ndarray:
+    """λ = t̂/n with n = −1/ln(f) (On the Beat §4.1) for settle times ``settle_time_s`` [s] (scalar or (N,))."""
+    t = np.asarray(settle_time_s, dtype=np.float64)
     check_finite(t, "settle_time_s")
     if (t <= 0).any():
         raise KDInputError(f"settle_time_s: expected positive seconds, got {t.min():.6g}")
@@ -38,14 +41,18 @@ def time_constant(settle_time, *, fraction: float = SETTLE_FRACTION) -> np.ndarr
     return t / n
 
 
-def gains_from_settle_time(settle_time, *, damping_ratio: float = 1.0, fraction: float = SETTLE_FRACTION):
+@renamed_kwargs(settle_time="settle_time_s")
+def gains_from_settle_time(settle_time_s, *, damping_ratio: float = defaults.DAMPING_RATIO,
+                           fraction: float = SETTLE_FRACTION):
     """Per-unit-mass gains (kp/m [1/s²], kd/m [1/s]) for settle times [s], scalar or (N,) (eq. 4 with ζ).
 
-    ``damping_ratio`` ζ > 0 scales the damping only: kd/m = 2ζ/λ, so every ζ shares ω_n = 1/λ.
+    ``damping_ratio`` ζ > 0 scales the damping only: kd/m = 2ζ/λ, so every ζ shares ω_n = 1/λ. The default is the
+    face's (:data:`~kdfaces.defaults.DAMPING_RATIO`, as :meth:`FaceModel.create`); 1 is On the Beat's eq. 4 as
+    published (critically damped).
     """
     if not (np.isfinite(damping_ratio) and damping_ratio > 0):
         raise KDInputError(f"damping_ratio: expected a positive number, got {damping_ratio}")
-    lam = time_constant(settle_time, fraction=fraction)
+    lam = time_constant(settle_time_s, fraction=fraction)
     return 1.0 / lam**2, 2.0 * damping_ratio / lam
 
 

@@ -75,7 +75,8 @@ class FaceModel:
         clusters: shape-matching clusters (:class:`Clusters`).
         shape_matching_alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
         damping_mode: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
-        diameter: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound).
+        diameter_m: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound; ``diameter``, its
+            old name, still works for one release with a :class:`DeprecationWarning`).
         rotation: how cluster rotations are fitted: "iterative" (Newton's method on SO(3) for the polar rotation,
             warm-started from the previous step; the default, several times faster) or "svd3" (polar part of A_pq
             from Warp's svd3, float64). Both fit A_pq + η·I, so they agree to float32 round-off once converged.
@@ -91,7 +92,7 @@ class FaceModel:
     clusters: Clusters
     shape_matching_alpha: float
     damping_mode: str
-    diameter: float
+    diameter_m: float
     rotation: str = defaults.ROTATION
     rotation_iterations: int = defaults.ROTATION_ITERATIONS
     rigid: np.ndarray | None = None
@@ -190,10 +191,19 @@ class FaceModel:
             clusters = Clusters.empty(n)
         diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
         return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
-                   shape_matching_alpha=float(alpha), damping_mode=damping, diameter=diameter, rotation=rotation,
+                   shape_matching_alpha=float(alpha), damping_mode=damping, diameter_m=diameter, rotation=rotation,
                    rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n))
+
+    @property
+    def diameter(self) -> float:
+        """Deprecated name of :attr:`diameter_m`."""
+        warn_renamed("FaceModel", "diameter", "diameter_m")
+        return self.diameter_m
 
     @classmethod
     def from_rig(cls, rig, **kwargs) -> FaceModel:
         """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments)."""
         return cls.create(rig.neutral, rig.faces, **kwargs)
+
+
+FaceModel.__init__ = renamed_kwargs(diameter="diameter_m")(FaceModel.__init__)

@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
+from .. import defaults
 from ..errors import KDInputError, SimulationBlowUpError, check_count
 from ..motion.trajectory import scan_trajectory
 from ..resources import init_warp
@@ -225,7 +226,7 @@ class FaceSystem:
             compute the same step (the tests hold them to float32 round-off of each other).
     """
 
-    def __init__(self, model: FaceModel, *, device="cpu", threads: int = 1, check_every: int = 16,
+    def __init__(self, model: FaceModel, *, device="cpu", threads: int = defaults.THREADS, check_every: int = 16,
                  blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
         init_warp()  # quietly, unless the user started Warp first
         self.model = model
@@ -546,7 +547,7 @@ class FaceSystem:
         """Raise :class:`SimulationBlowUpError` on NaN/inf or a runaway state, naming the member's time."""
         bake = state.bake
         radius, extent = (bake.radius, bake.extent) if bake is not None else (0.0, 0.0)
-        bound = radius + self.blowup_factor * max(self.model.diameter, extent)
+        bound = radius + self.blowup_factor * max(self.model.diameter_m, extent)
         for ch in state.chunks:
             for name, arr in (("position", ch.x), ("velocity", ch.v)):
                 a = arr.numpy()

@@ -131,7 +131,7 @@ class AsymmetricBell(Basis):
     """A Gaussian bell with ease-in width ``width_s`` [s] before t_i and ease-out width ``ease_out_s`` [s] after."""
 
     width_s: float = defaults.WIDTH_S
-    ease_out_s: float = 2 * defaults.WIDTH_S
+    ease_out_s: float = defaults.EASE_OUT_S
     cutoff: float = 3.0
 
     def __post_init__(self):
@@ -150,13 +150,14 @@ class AsymmetricBell(Basis):
 
 @renamed_kwargs(sigma="width_s", sigma_out="ease_out_s")
 def make_basis(kind: str, center_s: float, *, width_s: float = defaults.WIDTH_S,
-               ease_out_s: float | None = None) -> Basis:
+               ease_out_s: float | None = defaults.EASE_OUT_S) -> Basis:
     """A bell by name centred at ``center_s`` [s]: ``gaussian``, ``poly`` or ``asymmetric`` (``width_s`` [s] =
-    σ, the ease-in width for ``asymmetric``; ``ease_out_s`` [s] its ease-out width, default ``width_s``)."""
+    σ, the ease-in width for ``asymmetric``; ``ease_out_s`` [s] its ease-out width, default (also for None)
+    :data:`~kdfaces.defaults.EASE_OUT_S`, as :class:`AsymmetricBell`)."""
     if kind == "gaussian":
         return GaussianBasis(center_s, width_s)
     if kind == "poly":
         return PolyBell(center_s, width_s)
     if kind == "asymmetric":
-        return AsymmetricBell(center_s, width_s, width_s if ease_out_s is None else ease_out_s)
+        return AsymmetricBell(center_s, width_s, defaults.EASE_OUT_S if ease_out_s is None else ease_out_s)
     raise KDInputError(f"correction curve {kind!r} unknown; expected one of {BASIS_KINDS}")

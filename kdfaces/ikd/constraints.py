@@ -121,20 +121,23 @@ class Constraint:
         """"m/s" for velocity constraints, else "m"."""
         return "m/s" if self.kind == "velocity" else "m"
 
-    def measure(self, x: np.ndarray, x_prev: np.ndarray | None, h: float) -> np.ndarray:
-        """q of KD states ``x`` (N, 3) at t_i (and ``x_prev`` at t_i − h) in the constraint's space."""
+    @renamed_kwargs(h="step_s")
+    def measure(self, x: np.ndarray, x_prev: np.ndarray | None, step_s: float) -> np.ndarray:
+        """q of KD states ``x`` (N, 3) at t_i (and ``x_prev`` at t_i − h, h = ``step_s`` [s]) in the constraint's
+        space."""
         if self.kind == "velocity":
-            return (x[self.indices] - x_prev[self.indices]) / h  # eq. 12
+            return (x[self.indices] - x_prev[self.indices]) / step_s  # eq. 12
         if self.kind == "end_effector":
             return self.weights @ x[self.indices]
         if self.kind == "plane":
             return np.array([self.normal @ (self.weights @ x[self.indices])])
         return x[self.indices]
 
-    def residual(self, x, x_prev, h) -> np.ndarray:
-        """target − measure(x, x_prev, h) in the constraint's space (eq. 1, 4, 12); for an inequality (below a
+    @renamed_kwargs(h="step_s")
+    def residual(self, x, x_prev, step_s) -> np.ndarray:
+        """target − measure(x, x_prev, step_s) in the constraint's space (eq. 1, 4, 12); for an inequality (below a
         plane) only the violating part, min(0, offset − n·p)."""
-        r = self.target - self.measure(x, x_prev, h)
+        r = self.target - self.measure(x, x_prev, step_s)
         return np.minimum(r, 0.0) if self.inequality else r
 
     def error(self, r: np.ndarray) -> float:

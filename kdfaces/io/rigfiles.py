@@ -1,7 +1,7 @@
 """Rig loaders and writers: the npz format, OBJ folders, glTF and MakeHuman base OBJ + ``.target`` folders.
 
 All loaders return a :class:`~kdfaces.rig.BlendshapeRig` in metres; unit conversion happens here and nowhere else:
-``units`` ("m", "dm", "cm", "mm") or ``scale`` (metres per file unit) say what the file's numbers are. A head that
+``units`` ("m", "dm", "cm", "mm") or ``unit_m`` (metres per file unit) say what the file's numbers are. A head that
 comes out implausibly large or small for the stated unit gets one :class:`RigUnitsWarning` naming the likely unit.
 """
 
@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..deprecation import renamed_kwargs
 from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import (
     STRETCH_FACTOR,
@@ -35,18 +36,21 @@ __all__ = [
 DEFAULT_RIG_PATH = Path(os.environ.get("KDFACES_MESHES", Path(__file__).resolve().parents[2] / "meshes")) / \
     "makehuman_head.npz"
 MAKEHUMAN_UNIT_M = 0.1  # MakeHuman OBJ and .target files are in decimetres
-def unit_scale(units: str | None = None, scale: float | None = None, *, default: float = 1.0,
-               where: str = "rig") -> float:
-    """Metres per file unit from ``units`` (one of :data:`UNITS`) or ``scale``; ``default`` when neither is given."""
+@renamed_kwargs(scale="unit_m")
+def unit_scale(units: str | None = None, unit_m: float | None = None, *, default: float = 1.0,
+               where: str = "rig", name: str = "unit_m") -> float:
+    """Metres per file unit from ``units`` (one of :data:`UNITS`) or ``unit_m``; ``default`` when neither is given.
+    ``name``: what the error messages call ``unit_m`` (a shot file's ``rig.scale``)."""
+    scale = unit_m
     if units is not None and scale is not None:
-        raise KDInputError(f"{where}: give units or scale, not both")
+        raise KDInputError(f"{where}: give units or {name}, not both")
     if units is not None:
         if units not in UNITS:
             raise KDInputError(f"{where}.units: expected one of {sorted(UNITS)}, got {units!r}")
         return UNITS[units]
     if scale is not None:
         if isinstance(scale, bool) or not isinstance(scale, int | float) or not (np.isfinite(scale) and scale > 0):
-            raise KDInputError(f"{where}.scale: expected a positive number of metres per file unit, got {scale!r}")
+            raise KDInputError(f"{where}.{name}: expected a positive number of metres per file unit, got {scale!r}")
         return float(scale)
     return float(default)
 
@@ -65,36 +69,40 @@ def load_default_rig() -> BlendshapeRig:
     return load_npz(DEFAULT_RIG_PATH)
 
 
-def load_rig(spec, *, units: str | None = None, scale: float | None = None, cache_dir=None) -> BlendshapeRig:
+@renamed_kwargs(scale="unit_m")
+def load_rig(spec, *, units: str | None = None, unit_m: float | None = None, cache_dir=None,
+             unit_name: str = "unit_m") -> BlendshapeRig:
     """Load a rig from ``"default"``, an ``.npz``, a glTF (``.gltf``/``.glb``), an OBJ folder, or a MakeHuman folder
-    (``base.obj`` + ``*.target``), converting its ``units`` (or ``scale``, metres per file unit) to metres.
+    (``base.obj`` + ``*.target``), converting its ``units`` (or ``unit_m``, metres per file unit, as in
+    :func:`save_obj_folder`; its old name ``scale`` still works for one release) to metres. ``unit_name``: what
+    errors call ``unit_m`` (a shot file passes its ``rig.scale``).
 
     Defaults: npz and glTF files are in metres (the glTF standard), OBJ folders in metres, MakeHuman in
     decimetres. An OBJ folder is parsed once per content: with ``cache_dir`` the parsed rig is kept there as an
-    npz named by the hash of the folder's files and the scale.
+    npz named by the hash of the folder's files and the unit.
     """
     if spec is None or str(spec) == "default":
-        if units is not None or scale is not None:
-            raise KDInputError("rig: the default rig is in metres already; units/scale apply to rig files")
+        if units is not None or unit_m is not None:
+            raise KDInputError(f"rig: the default rig is in metres already; units/{unit_name} apply to rig files")
         return load_default_rig()
     p = _require_file(spec)
     if p.is_file() and p.suffix == ".npz":
         rig = load_npz(p)
-        unit_m = unit_scale(units, scale, where=str(p))
+        unit_m = unit_scale(units, unit_m, where=str(p), name=unit_name)
         rig = rig if unit_m == 1.0 else _rescaled(rig, unit_m)
     elif p.is_file() and p.suffix in (".gltf", ".glb"):
         from .gltf import load_gltf_rig
 
-        unit_m = unit_scale(units, scale, where=str(p))
+        unit_m = unit_scale(units, unit_m, where=str(p), name=unit_name)
         rig = load_gltf_rig(p)
         rig = rig if unit_m == 1.0 else _rescaled(rig, unit_m)
     elif p.is_dir():
         if list(p.glob("*.target")) or list(p.glob("targets/*.target")):
-            unit_m = unit_scale(units, scale, default=MAKEHUMAN_UNIT_M, where=str(p))
+            unit_m = unit_scale(units, unit_m, default=MAKEHUMAN_UNIT_M, where=str(p), name=unit_name)
             rig = load_makehuman(p / "base.obj", p / "targets" if (p / "targets").is_dir() else p, unit_m=unit_m)
         else:
-            unit_m = unit_scale(units, scale, where=str(p))
-            rig = load_obj_folder(p, scale=unit_m, cache_dir=cache_dir)
+            unit_m = unit_scale(units, unit_m, where=str(p), name=unit_name)
+            rig = load_obj_folder(p, unit_m=unit_m, cache_dir=cache_dir)
     else:
         raise KDInputError(f"{p}: expected an .npz or glTF rig, an OBJ folder or a MakeHuman folder (base.obj + "
                            ".target files)")
@@ -215,9 +223,11 @@ def save_npz(rig: BlendshapeRig, path) -> Path:
     return Path(path)
 
 
-def read_obj(path, *, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) [file units × scale] in file order and triangles (F, 3); polygons are fan-triangulated."""
-    mesh = read_obj_mesh(path, scale=scale)
+@renamed_kwargs(scale="unit_m")
+def read_obj(path, *, unit_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) [file units × ``unit_m``, metres per file unit] in file order and triangles (F, 3); polygons
+    are fan-triangulated."""
+    mesh = read_obj_mesh(path, scale=unit_m)
     return mesh.vertices, mesh.triangles
 
 
@@ -238,7 +248,8 @@ def _folder_key(files: list[Path], scale: float, neutral_name: str) -> str:
     return h.hexdigest()
 
 
-def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float = 1.0,
+@renamed_kwargs(scale="unit_m")
+def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", unit_m: float = 1.0,
                     cache_dir=None) -> BlendshapeRig:
     """A folder holding ``neutral.obj`` and one OBJ per shape (file stem = shape name), same vertex order.
 
@@ -247,7 +258,8 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
     :func:`~kdfaces.rig.blendshapes.reordered_shapes`) is refused, naming the file. The neutral must be a surface
     (at least 3 vertices and one face, not all of zero area).
 
-    Lengths are multiplied by ``scale`` (metres per file unit). The neutral's polygons, UVs and groups become the
+    Lengths are multiplied by ``unit_m`` (metres per file unit; its old name ``scale`` still works for one
+    release). The neutral's polygons, UVs and groups become the
     rig's polygons, uvs and parts. With ``cache_dir``, the parsed rig is kept there as an npz named by the hash of
     the folder's files (so an edited file is parsed again, never read stale).
     """
@@ -262,16 +274,16 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
         raise KDInputError(f"{d}: no shape OBJ files next to {neutral_name}")
     cached = None
     if cache_dir is not None:
-        key = _folder_key([neutral_path, *shapes], scale, neutral_name)
+        key = _folder_key([neutral_path, *shapes], unit_m, neutral_name)
         cached = Path(cache_dir) / f"rig_{key[:24]}.npz"
         if cached.exists():
             return load_npz(cached)
-    mesh = read_obj_mesh(neutral_path, scale=scale)
+    mesh = read_obj_mesh(neutral_path, scale=unit_m)
     neutral = mesh.vertices
     neutral_key = obj_face_key(neutral_path.read_bytes())
     deltas = np.empty((len(shapes), len(neutral), 3), dtype=np.float32)
     for k, p in enumerate(shapes):
-        v, key = read_obj_shape(p, scale=scale)
+        v, key = read_obj_shape(p, scale=unit_m)
         if v.shape != neutral.shape:
             raise KDInputError(f"{p}: {len(v)} vertices, expected {len(neutral)} as in {neutral_path.name}")
         if key is not None and key != neutral_key:
@@ -288,7 +300,7 @@ def load_obj_folder(folder, *, neutral_name: str = "neutral.obj", scale: float =
     try:
         rig = BlendshapeRig.create(neutral, deltas, triangles, [p.stem for p in shapes], name=d.name,
                                    polygons=(mesh.counts, mesh.corners), uvs=uvs, part_names=mesh.group_names,
-                                   vertex_parts=mesh.vertex_groups(), source_unit_m=scale, check_units=False)
+                                   vertex_parts=mesh.vertex_groups(), source_unit_m=unit_m, check_units=False)
     except KDInputError as e:
         raise KDInputError(f"{d}: {e}") from None
     if cached is not None:
@@ -350,7 +362,7 @@ def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
 
 def load_makehuman(base_obj, targets_dir, *, unit_m: float = MAKEHUMAN_UNIT_M) -> BlendshapeRig:
     """A MakeHuman base OBJ plus a folder of sparse ``.target`` files (``index dx dy dz``), both in decimetres."""
-    neutral, faces = read_obj(base_obj, scale=unit_m)
+    neutral, faces = read_obj(base_obj, unit_m=unit_m)
     _check_surface(Path(base_obj), neutral, faces)
     tdir = Path(targets_dir)
     files = sorted(tdir.glob("*.target"))

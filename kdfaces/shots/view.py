@@ -12,7 +12,7 @@ __all__ = ["view_shot", "add_view_parser"]
 
 
 def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
-              threads: int = 2) -> dict:
+              threads: int = defaults.THREADS) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
@@ -67,6 +67,7 @@ def add_view_parser(subparsers) -> None:
                     help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--width", type=int, default=960, help="window width [px]")
     ap.add_argument("--height", type=int, default=720, help="window height [px]")
-    ap.add_argument("--threads", type=int, default=2, help="CPU threads per KD state (default 2)")
+    ap.add_argument("--threads", type=int, default=defaults.THREADS,
+                    help=f"CPU threads per KD state (default {defaults.THREADS})")
     ap.add_argument("--json", action="store_true", help="print the summary to stdout")
     ap.set_defaults(func=_view_command)

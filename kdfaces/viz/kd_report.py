@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..defaults import default_step
-from ..deprecation import renamed_kwargs
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 from ..kd import observe_kinematic, simulate_full, simulate_kd
@@ -33,7 +33,8 @@ class KDErrorReport:
         errors: max-vertex ‖x_KD − x_full‖ [m] per window and frame, shape (W, F).
         deviation: max-vertex ‖x_full − x_K‖ [m] per frame (secondary motion), shape (F,).
         seconds: wall time of each window's KD batch [s], shape (W,).
-        epsilon: the perceptual threshold ε [m] drawn on the plot (or None).
+        epsilon_m: the perceptual threshold ε [m] drawn on the plot (or None; ``epsilon``, its old name, still
+            works for one release with a :class:`DeprecationWarning`).
         window_auto: the automatic window [s] (or None).
     """
 
@@ -42,8 +43,15 @@ class KDErrorReport:
     errors: np.ndarray
     deviation: np.ndarray
     seconds: np.ndarray
-    epsilon: float | None = None
+    epsilon_m: float | None = None
     window_auto: float | None = None
+
+    @property
+    def epsilon(self) -> float | None:
+        """Deprecated name of :attr:`epsilon_m`."""
+        warn_renamed("KDErrorReport", "epsilon", "epsilon_m")
+        return self.epsilon_m
+
 
     def to_json(self) -> dict:
         """The report as plain JSON types (seconds, metres): ``times_s``, ``epsilon_m``, ``window_auto_s``,
@@ -51,7 +59,7 @@ class KDErrorReport:
         window with ``window_s``, ``max_error_vs_full_m``, ``seconds`` and ``error_vs_full_m`` (per frame)."""
         return {
             "times_s": self.times.tolist(),
-            "epsilon_m": self.epsilon,
+            "epsilon_m": self.epsilon_m,
             "window_auto_s": self.window_auto,
             "max_deviation_from_kinematic_m": float(self.deviation.max()),
             "deviation_from_kinematic_m": self.deviation.tolist(),
@@ -59,6 +67,9 @@ class KDErrorReport:
                        "error_vs_full_m": e.tolist()}
                       for w, e, s in zip(self.windows, self.errors, self.seconds, strict=True)],
         }
+
+
+KDErrorReport.__init__ = renamed_kwargs(epsilon="epsilon_m")(KDErrorReport.__init__)
 
 
 @renamed_kwargs(h="step_s", epsilon="epsilon_m", window_auto="window_auto_s")
@@ -88,7 +99,7 @@ def kd_error_report(system, trajectory, windows, *, step_s: float | None = None,
         errors.append(np.linalg.norm(x - full, axis=2).max(axis=1))
     return KDErrorReport(times=t, windows=w, errors=np.stack(errors),
                          deviation=np.linalg.norm(full - kin, axis=2).max(axis=1), seconds=np.array(seconds),
-                         epsilon=epsilon, window_auto=window_auto)
+                         epsilon_m=epsilon, window_auto=window_auto)
 
 
 def write_kd_report(out_dir, report: KDErrorReport, *, stem: str = "kd_error") -> tuple[Path, Path]:
@@ -102,8 +113,8 @@ def write_kd_report(out_dir, report: KDErrorReport, *, stem: str = "kd_error") -
         auto = report.window_auto is not None and abs(w - report.window_auto) < 1e-12
         ax.semilogy(report.times, np.maximum(e, floor), lw=2.2 if auto else 1.2,
                     label=f"δ = {w:.2f} s" + (" (auto)" if auto else ""))
-    if report.epsilon is not None:
-        ax.axhline(report.epsilon, color="k", ls="--", lw=1, label=f"ε = {1e3 * report.epsilon:.2f} mm")
+    if report.epsilon_m is not None:
+        ax.axhline(report.epsilon_m, color="k", ls="--", lw=1, label=f"ε = {1e3 * report.epsilon_m:.2f} mm")
     ax.set_ylabel("max-vertex ‖x_KD − x_full‖ [m]")
     ax.set_title("KD state error against the full simulation")
     ax.legend(fontsize=7, ncol=2)

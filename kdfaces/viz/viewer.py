@@ -180,7 +180,7 @@ class ShotViewer(PlotterWindow):
     """
 
     def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | str | None = None,
-                 widgets: bool = True, device: str = "cpu", threads: int = 2):
+                 widgets: bool = True, device: str = "cpu", threads: int = defaults.THREADS):
         self.shot = shot
         self.threads = int(threads)
         self.trajectory = shot.trajectory

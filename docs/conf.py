@@ -21,6 +21,7 @@ extensions = [
     "sphinx.ext.viewcode",
     "myst_parser",
     "kd_reexports",
+    "kd_defaults",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -32,7 +33,7 @@ root_doc = "index"
 autodoc_typehints = "description"
 autodoc_typehints_description_target = "documented_params"
 autodoc_member_order = "bysource"
-autodoc_preserve_defaults = True
+autodoc_preserve_defaults = False  # defaults render as values (threads=2), not as defaults.THREADS
 
 autosummary_generate = False  # tables only (the top-level pages); no stub pages
 

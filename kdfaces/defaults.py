@@ -15,7 +15,8 @@ __all__ = [
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
     "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
-    "WINDOW_MODES", "default_step", "user_cache_dir", "window_argument",
+    "WINDOW_MODES", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
+    "max_steps_argument",
 ]
 
 # --- face dynamics (paper §4.5; On the Beat eq. 4) ----------------------------------------------------------------
@@ -87,6 +88,19 @@ RAYLEIGH_BETA = 0.01
 HAT_STEP_S = 0.01
 HAT_WINDOW_S = 0.568
 
+# --- work limits (estimated before anything runs) -----------------------------------------------------------------
+#: The most work a command plans, in vertex-steps (one vertex advanced by one simulation step), estimated when the
+#: shot is loaded, before the window scan, the IKD solve or any allocation (:func:`kdfaces.shots.estimate_work`):
+#: frames × steps per KD state × vertices for the KD of every frame (twice with constraints: KD and IKD), the IKD
+#: solve's KD states, and the automatic window's scan of x_K (each sampled vertex counts :data:`SCAN_COST`).
+#: 1e10 is about 15 minutes of face KD on two CPU cores (~1e7 vertex-steps/s measured on the default 4,774-vertex
+#: head): a two-minute 60 fps take on a 30,000-vertex rig fits, a ten-hour keyed shot does not. ``--max-steps``
+#: raises it; ``max_steps=None`` (Python) lifts it.
+MAX_STEPS = 1e10
+#: What sampling x_K, ẋ_K, ẍ_K of one vertex at one time costs, in vertex-steps (blend shapes and neck/head
+#: skinning: about four face steps, measured).
+SCAN_COST = 4
+
 # --- bakes (kdfaces bake) ------------------------------------------------------------------------------------------
 #: Frames per bake task (one chunk of the store): large enough that a task's KD batch dwarfs Dask's per-task
 #: overhead, small enough that a 2-minute take gives every worker of a few machines many tasks.
@@ -126,3 +140,18 @@ def window_argument(text: str):
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected seconds, 'auto' or 'adaptive', got {text!r}") from None
+
+
+def max_steps_argument(text: str) -> float:
+    """A ``--max-steps`` command-line value: a positive number of vertex-steps (``1e10``, ``3e11``; ``inf`` lifts
+    the limit); see :data:`MAX_STEPS`."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number of vertex-steps (e.g. 1e10), got {text!r}")
+    return value

@@ -21,13 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import lambertw
 
-from .defaults import EPSILON_FRACTION, MAX_WINDOW_STEPS, default_step
+from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, default_step
 from .deprecation import renamed_kwargs
 from .errors import KDInputError
 from .motion.trajectory import scan_trajectory
 
 __all__ = ["DEFAULT_EPSILON_FRACTION", "damping_regime", "window_1d", "WindowEstimate", "automatic_window",
-           "grid_times", "AdaptiveWindows", "adaptive_windows", "impulse_responses", "truncation_steps"]
+           "grid_size", "grid_times", "check_scan", "AdaptiveWindows", "adaptive_windows", "impulse_responses",
+           "truncation_steps"]
 
 #: ε = this fraction of the face diameter (§5.3 uses 0.1 % of the object diameter per node).
 DEFAULT_EPSILON_FRACTION = EPSILON_FRACTION
@@ -97,15 +98,34 @@ class WindowEstimate:
     regime: str
 
 
+def grid_size(trajectory, step_s: float) -> int:
+    """J, the number of step-grid times start + j·h over the shot (what :func:`grid_times` would return, without
+    building it)."""
+    return int(np.floor((trajectory.end - trajectory.start) / step_s + 1e-9)) + 1
+
+
 def grid_times(trajectory, step_s: float) -> np.ndarray:
     """The step grid start + j·h over the shot [s], shape (J,)."""
-    n = int(np.floor((trajectory.end - trajectory.start) / step_s + 1e-9)) + 1
-    return trajectory.start + np.arange(n) * step_s
+    return trajectory.start + np.arange(grid_size(trajectory, step_s)) * step_s
+
+
+def check_scan(samples: int, vertices: int, max_steps: float | None, *, what: str = "automatic window") -> None:
+    """Raise :class:`KDInputError` when scanning x_K at ``samples`` times for ``vertices`` vertices costs more than
+    ``max_steps`` vertex-steps (each sampled vertex counts :data:`~kdfaces.defaults.SCAN_COST`; None: no bound).
+    The window scans call it before they sample anything, so they always end."""
+    if max_steps is None:
+        return
+    cost = float(samples) * float(vertices) * SCAN_COST
+    if cost > max_steps:
+        raise KDInputError(f"{what}: scanning x_K at {samples:,} step-grid times for {vertices:,} vertices is "
+                           f"{cost:.3g} vertex-steps, more than max_steps {max_steps:.3g}; expected a shorter shot "
+                           "(animation.end_s, start_s), a longer step, a window in seconds (dynamics.window_s or "
+                           "--window) instead of 'auto'/'adaptive', or a larger --max-steps")
 
 
 @renamed_kwargs(h="step_s", epsilon="epsilon_m")
 def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon_m: float | None = None,
-                     times=None) -> WindowEstimate:
+                     times=None, max_steps: float | None = MAX_STEPS) -> WindowEstimate:
     """The automatic KD window of ``system`` on ``trajectory``.
 
     A system with its own ``automatic_window`` method (the FEM hat: the modal window of §5.3) answers itself.
@@ -114,7 +134,9 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     §5.2 applies: ẍ_max is the largest ‖ẍ_K‖ over vertices at ``times`` (default the step grid over the shot),
     ẋ0 = ẍ_max·h, and each distinct gain pair gets its own 1-D window; the largest is returned (shape matching is
     not modelled, it only couples vertices). ``step_s`` [s] defaults to the frame interval; ``epsilon_m`` [m] to
-    0.1 % of the diameter.
+    0.1 % of the diameter. The scan is bounded: more than ``max_steps`` vertex-steps of sampling (times × vertices ×
+    :data:`~kdfaces.defaults.SCAN_COST`; default :data:`~kdfaces.defaults.MAX_STEPS`, None: no bound) is a
+    :class:`KDInputError` before anything is sampled (:func:`check_scan`).
     """
     own = getattr(system, "automatic_window", None)
     if own is not None:
@@ -125,7 +147,9 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
                            "per-vertex gains kp, kd and a diameter")
     h = default_step(trajectory, step_s)
     epsilon = DEFAULT_EPSILON_FRACTION * model.diameter if epsilon_m is None else float(epsilon_m)
-    t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64)
+    n_vertices = int(getattr(model, "num_vertices", np.size(model.kp)))
+    check_scan(grid_size(trajectory, h) if times is None else np.size(times), n_vertices, max_steps)
+    t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
     acc_max = 0.0
     for i in range(0, len(t), 32):
         acc = scan_trajectory(trajectory, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
@@ -317,14 +341,15 @@ def _face_kicks(model, trajectory, origin: float, h: float, J: int, vertex_bin: 
 
 @renamed_kwargs(epsilon="epsilon_m", h="step_s")
 def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = None, epsilon_m: float | None = None,
-                     start_s: float | None = None) -> AdaptiveWindows:
+                     start_s: float | None = None, max_steps: float | None = MAX_STEPS) -> AdaptiveWindows:
     """The smallest KD window at each of ``times`` whose truncation error is bounded by ε (``window_s="adaptive"``).
 
     A system with its own ``adaptive_windows`` method (the FEM hat: from its modal envelope) answers itself.
     Otherwise ``system`` is a face system or model (gains ``kp``, ``kd`` (N,), ``diameter``, and optionally
     ``shape_matching_alpha``, ``damping_mode``, ``rigid_mask``); ε = ``epsilon_m`` [m] bounds every vertex, default
     0.1 % of the diameter as for :func:`automatic_window`. ``times`` [s] default to the step grid; ``step_s`` h to
-    the frame interval; ``start_s`` (default the shot start) is where the full simulation starts.
+    the frame interval; ``start_s`` (default the shot start) is where the full simulation starts. The scan of x_K is
+    bounded by ``max_steps`` vertex-steps as in :func:`automatic_window` (checked before it starts).
 
     **The bound.** Let z = (d, w) = (x − x_K, ẋ − ẋ_K) be a vertex's deviation from its kinematic target at grid
     time t_j. The face step (:func:`~kdfaces.dynamics.kernels.track_step`: per unit mass, backward Euler on the PD
@@ -373,6 +398,8 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     if not (eps > 0 and np.isfinite(eps)):
         raise KDInputError(f"epsilon_m: expected a positive distance in metres, got {eps}")
     s = float(getattr(trajectory, "start", 0.0) if start_s is None else start_s)
+    if times is None:
+        check_scan(grid_size(trajectory, h), model.num_vertices, max_steps, what="adaptive windows")
     t = grid_times(trajectory, h) if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kp, kd = np.broadcast_to(model.kp, (model.num_vertices,)), np.broadcast_to(model.kd, (model.num_vertices,))
     rigid = np.asarray(getattr(model, "rigid_mask", np.zeros(len(kp), bool)), dtype=bool)
@@ -402,10 +429,12 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     k_all = np.floor(rel + 1e-9).astype(np.int64)
     phase = np.where(np.abs(rel - np.round(rel)) <= 1e-9 * np.maximum(1.0, np.abs(rel)), 0.0, rel - k_all)
     k_all = np.where(phase == 0.0, np.round(rel).astype(np.int64), k_all)
-    for ph in np.unique(phase):  # one grid per phase: off-grid times are bounded on their own step grid
+    phases = np.unique(phase)
+    spans = [max(int(np.floor((end - (s + ph * h)) / h + 1e-9)), int(k_all[phase == ph].max())) for ph in phases]
+    check_scan(sum(J + 1 for J in spans), model.num_vertices, max_steps, what="adaptive windows")
+    for ph, J in zip(phases, spans):  # one grid per phase: off-grid times are bounded on their own step grid
         sel = phase == ph
         origin = s + ph * h
-        J = max(int(np.floor((end - origin) / h + 1e-9)), int(k_all[sel].max()))
         Uv, Ud = _face_kicks(model, trajectory, origin, h, J, vertex_bin, B)
         n, e, L = truncation_steps(Gv, Gd, Uv, Ud, eps, combine="max")
         steps[sel], bound[sel] = n[k_all[sel]], e[k_all[sel]]

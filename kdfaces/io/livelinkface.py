@@ -5,11 +5,25 @@ Columns are found by name (the CSV order is not ARKit's enum order). The timecod
 counted at the timecode rate (inferred: the smallest standard rate above the largest FF seen); the sample rate
 is inferred from the timecode steps. Blend-shape coefficients are ARKit's [0, 1] values; capture noise slightly
 outside that range is clamped. Head angles are radians and become a yaw/pitch/roll drive of the neck chain.
+
+Timecodes are checked row by row, in file order (rows are never reordered):
+
+- **Midnight.** A step back by about a day (``23:59:59:29`` → ``00:00:00:00``) whose unwrapped step is an
+  ordinary one (positive, and no longer than the gap limit below) is a take recorded across midnight: 24 h are
+  added to every later row. Only one wrap is possible (a take is shorter than a day).
+- **Backwards.** Any other step back is an error naming the row (two takes in one file, or rows out of order).
+- **Duplicates.** A row that repeats the previous row entirely (timecode and every value) carries nothing new and
+  is dropped with a warning (``rows_read`` counts it). A repeated timecode with other values is an error naming the
+  rows: the take was sampled faster than its timecodes say (e.g. 60 fps written with 30 fps codes), and dropping
+  rows would lose half of it.
+- **Gaps.** A step forward longer than :data:`MAX_GAP_S` and than :data:`MAX_GAP_STEPS` typical steps is an
+  error (a second take appended, or a stalled capture); a few dropped frames are fine and are interpolated.
 """
 
 from __future__ import annotations
 
 import csv
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,9 +35,15 @@ from ..motion.joints import JointDrive, SkeletonAnimation
 from ..motion.trajectory import FaceAnimation, ShapeTrack
 from ..rig.names import ARKIT_NAMES, canonical_name
 
-__all__ = ["LiveLinkTake", "read_livelinkface", "livelinkface_animation"]
+__all__ = ["LiveLinkTake", "read_livelinkface", "livelinkface_animation", "check_stretch", "MAX_GAP_S",
+           "MAX_GAP_STEPS", "DAY_S"]
 
 _TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 120.0)
+#: A step forward in the timecodes longer than this [s] and than :data:`MAX_GAP_STEPS` typical steps is an error.
+MAX_GAP_S = 1.0
+MAX_GAP_STEPS = 10
+#: Seconds in a day: what a timecode wrap at midnight takes away.
+DAY_S = 86400.0
 _HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 
 
@@ -31,7 +51,9 @@ _HEAD = ("HeadYaw", "HeadPitch", "HeadRoll")
 class LiveLinkTake:
     """A parsed take. ``times`` [s] from the first sample, shape (T,); ``weights`` (T, 52) in ARKit order
     (:data:`~kdfaces.rig.names.ARKIT_NAMES`); ``head`` (T, 3) yaw/pitch/roll [rad] or None; ``rate_hz`` inferred;
-    ``rows_read`` data rows in the file (rows repeating an earlier timecode are dropped from T)."""
+    ``rows_read`` data rows in the file (a row repeating the previous one entirely is dropped from T; see the
+    module docstring for how timecodes are checked); ``midnight_row``: the first row after a wrap at midnight
+    (None without one)."""
 
     path: Path
     times: np.ndarray
@@ -41,6 +63,7 @@ class LiveLinkTake:
     timecode_rate: float
     rows_read: int
     names: tuple[str, ...] = ARKIT_NAMES
+    midnight_row: int | None = None
 
 
 def _parse_timecodes(codes: list[str], path: Path) -> np.ndarray:
@@ -50,9 +73,13 @@ def _parse_timecodes(codes: list[str], path: Path) -> np.ndarray:
         try:
             if len(fields) != 4:
                 raise ValueError
-            parts.append([float(f) for f in fields])
+            hh, mm, ss, ff = (float(f) for f in fields)
+            if not (0 <= hh < 24 and 0 <= mm < 60 and 0 <= ss < 60 and 0 <= ff < 1000):
+                raise ValueError
+            parts.append((hh, mm, ss, ff))
         except ValueError:
-            raise KDInputError(f"{path}: row {row} field 'Timecode': expected HH:MM:SS:FF.fff, got {code!r}") from None
+            raise KDInputError(f"{path}: row {row} field 'Timecode': expected HH:MM:SS:FF.fff (hours < 24, minutes "
+                               f"and seconds < 60), got {code!r}") from None
     a = np.asarray(parts)
     max_frame = a[:, 3].max()
     rate = next((r for r in _TIMECODE_RATES if max_frame < r), None)
@@ -61,8 +88,58 @@ def _parse_timecodes(codes: list[str], path: Path) -> np.ndarray:
     return a[:, 0] * 3600 + a[:, 1] * 60 + a[:, 2] + a[:, 3] / rate, rate
 
 
+def _check_times(t: np.ndarray, rows: list[list[str]], path: Path) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """Timecode seconds ``t`` (T,) in file order → (times unwrapped at midnight, rows to keep (T,) bool, the first
+    row after midnight or None); every other lie is a :class:`KDInputError` naming the row (see the module
+    docstring). File rows are numbered from 2 (the header is row 1)."""
+    def row(i):
+        return int(i) + 2
+
+    d = np.diff(t)
+    same = d == 0
+    exact = np.zeros(len(d), dtype=bool)  # rows that repeat the previous row entirely
+    if same.any():
+        idx = np.flatnonzero(same)
+        exact[idx] = [rows[i][1:] == rows[i + 1][1:] for i in idx]
+        clash = idx[~exact[idx]]
+        if len(clash):
+            i = clash[0]
+            raise KDInputError(f"{path}: rows {row(i)} and {row(i + 1)} have the same timecode {rows[i][0]!r} with "
+                               f"different values ({len(clash)} row(s) repeat the previous row's timecode); expected "
+                               "one timecode per row: the take was likely sampled faster than its timecode rate (e.g. "
+                               "60 fps written with 30 fps codes) - re-export it with subframe timecodes (.fff)")
+    forward = d[d > 0]
+    if not len(forward):
+        return t, np.r_[True, ~exact], None
+    step = float(np.median(forward))
+    gap = max(MAX_GAP_S, MAX_GAP_STEPS * step)
+    back = np.flatnonzero(d < 0)
+    midnight = None
+    wraps = back[(d[back] + DAY_S > 0) & (d[back] + DAY_S <= gap)]
+    if len(wraps):
+        midnight = int(wraps[0]) + 1
+        t = t.copy()
+        t[midnight:] += DAY_S
+        d = np.diff(t)
+        back = np.flatnonzero(d < 0)
+    if len(back):
+        i = back[0]
+        raise KDInputError(f"{path}: row {row(i + 1)}: timecode {rows[i + 1][0]!r} is {-d[i]:.6g} s before row "
+                           f"{row(i)}'s {rows[i][0]!r}; expected timecodes that increase row by row (two takes in one "
+                           "file? keep one take per CSV)")
+    jumps = np.flatnonzero(d > gap)
+    if len(jumps):
+        i = jumps[0]
+        raise KDInputError(f"{path}: row {row(i + 1)}: timecode {rows[i + 1][0]!r} is {d[i]:.6g} s after row "
+                           f"{row(i)}'s {rows[i][0]!r}; expected steps of about {step:.4g} s (at most {gap:.3g} s): a "
+                           "second take appended, or a capture that stalled? keep one continuous take per CSV")
+    return t, np.r_[True, ~exact], midnight
+
+
 def read_livelinkface(path) -> LiveLinkTake:
-    """Parse a Live Link Face CSV. Raises :class:`KDInputError` naming the file and field on bad input."""
+    """Parse a Live Link Face CSV. Raises :class:`KDInputError` naming the file, the row and the field on bad input,
+    including timecodes that lie (duplicates, steps backwards, gaps; a wrap at midnight is unwrapped — see the
+    module docstring)."""
     p = Path(path)
     if not p.exists():
         raise KDInputError(f"{p}: file not found")
@@ -114,35 +191,52 @@ def read_livelinkface(path) -> LiveLinkTake:
             r, c = np.argwhere(np.abs(head) > np.pi + 1e-6)[0]
             raise KDInputError(f"{p}: column {_HEAD[c]!r}, row {r + 2}: {head[r, c]:.6g}; expected an angle in "
                                "radians within ±π")
-    # duplicated timecodes (the app repeats the first sample) keep the last row; order by time
-    order = np.argsort(times, kind="stable")
-    times, weights = times[order], weights[order]
-    keep = np.append(np.diff(times) > 0, True)
+    times, keep, midnight = _check_times(times, rows, p)
+    if not keep.all():
+        dropped = np.flatnonzero(~keep)
+        warnings.warn(f"{p}: row(s) {', '.join(str(int(i) + 2) for i in dropped[:5])}"
+                      f"{'...' if len(dropped) > 5 else ''} repeat the previous row exactly and are dropped",
+                      stacklevel=2)
     times, weights = times[keep], weights[keep]
     if head is not None:
-        head = head[order][keep]
+        head = head[keep]
     if len(times) < 2:
         raise KDInputError(f"{p}: need at least two distinct timecodes")
     rate = float(1.0 / np.median(np.diff(times)))
     if abs(rate - round(rate)) < 1e-3 * rate:  # timecodes are rounded to the ms: snap to the nominal rate
         rate = float(round(rate))
     return LiveLinkTake(path=p, times=times - times[0], weights=np.clip(weights, 0.0, 1.0), head=head,
-                        rate_hz=rate, timecode_rate=tc_rate, rows_read=len(rows))
+                        rate_hz=rate, timecode_rate=tc_rate, rows_read=len(rows),
+                        midnight_row=None if midnight is None else midnight + 2)
+
+
+def check_stretch(take: LiveLinkTake, start: float, end: float, *, names=("start", "end")) -> None:
+    """Raise :class:`KDInputError` unless ``0 ≤ start < end ≤`` the take's length [s]; the message names the file
+    and the field (``names``: how the caller calls start and end, e.g. ``animation.start_s``)."""
+    length = float(take.times[-1])
+    where = f"{take.path}: the take runs [0, {length:.6g}] s (times from its first sample)"
+    if not (np.isfinite(start) and 0.0 <= start < length):
+        raise KDInputError(f"{names[0]}: {start:g} s is outside the take; {where}")
+    if not (np.isfinite(end) and end <= length + 1e-9):
+        raise KDInputError(f"{names[1]}: {end:g} s is outside the take; {where}")
+    if not end > start:
+        raise KDInputError(f"{names[1]}: {end:g} s is not after {names[0]} ({start:g} s); {where}")
 
 
 def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolation: str = "catmull-rom",
                            start: float = 0.0, end: float | None = None) -> FaceAnimation:
     """A :class:`FaceAnimation` from a take: one 52-channel weight track, and a head drive if angles are non-zero.
 
-    ``start``/``end`` [s] crop the take (relative to its first sample); ``fps`` defaults to the capture rate, so
-    the default simulation step puts every captured frame on the step grid. Channels a rig lacks are skipped with
-    a warning (``strict_channels=False``; see :class:`~kdfaces.motion.KinematicTrajectory`).
+    ``start``/``end`` [s] crop the take (relative to its first sample; 0 ≤ start < end ≤ the take's length, else a
+    :class:`KDInputError` naming the one that is outside); ``fps`` defaults to the capture rate, so the default
+    simulation step puts every captured frame on the step grid. Channels a rig lacks are skipped with a warning
+    (``strict_channels=False``; see :class:`~kdfaces.motion.KinematicTrajectory`).
     """
     take = take_or_path if isinstance(take_or_path, LiveLinkTake) else read_livelinkface(take_or_path)
     t = take.times
     end = float(t[-1]) if end is None else float(end)
-    if not (0.0 <= start < end <= t[-1] + 1e-9):
-        raise KDInputError(f"{take.path}: crop [{start}, {end}] s outside the take's [0, {t[-1]:.3f}] s")
+    start = float(start)
+    check_stretch(take, start, end)
     sel = (t >= start - 1.0 / take.rate_hz) & (t <= end + 1.0 / take.rate_hz)
     track = ShapeTrack(take.names, KeyframeCurve.create(t[sel], take.weights[sel], interpolation=interpolation,
                                                         where=f"{take.path} weights"))

@@ -76,6 +76,11 @@ class KeyframeCurve:
         """C, the number of channels."""
         return self.values.shape[1]
 
+    def constant_channels(self) -> np.ndarray:
+        """(C,) bool: channels that hold one value at all times (every key the same value, zero tangents)."""
+        v, m = self.values, self.tangents
+        return np.all(v == v[:1], axis=0) & np.all(m == 0, axis=0)
+
     @property
     def span(self) -> tuple[float, float]:
         """(first key, last key) [s]."""

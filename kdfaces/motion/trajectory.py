@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
-from ..rig.names import resolve_channels
+from ..rig.names import alias_key, canonical_name, resolve_channels
 from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
@@ -74,10 +74,22 @@ class FaceAnimation:
         return self.end - self.start
 
     @property
+    def num_frames(self) -> int:
+        """F, the number of frames in the shot (without building :attr:`frame_times`)."""
+        return int(round(self.duration * self.fps)) + 1
+
+    @property
     def frame_times(self) -> np.ndarray:
         """Times [s] of every frame in the shot, shape (F,)."""
-        n = int(round(self.duration * self.fps)) + 1
-        return self.start + np.arange(n) / self.fps
+        return self.start + np.arange(self.num_frames) / self.fps
+
+    def moves(self) -> bool:
+        """Whether anything in the animation changes over time: a shape-weight channel, a joint drive or the root
+        translation whose keys are not all one value (False: every track holds one pose, the head does not turn)."""
+        curves = [t.curve for t in self.tracks] + [d.curve for d in self.skeleton.drives]
+        if self.skeleton.root is not None:
+            curves.append(self.skeleton.root)
+        return any(not c.constant_channels().all() for c in curves)
 
 
 class UnmappedChannelsWarning(UserWarning):
@@ -93,13 +105,18 @@ class KinematicTrajectory:
     ``channel_map`` entry, the shape of that name, or both halves of a side-split shape (``browInnerUp`` drives
     ``browInnerUp_L`` and ``browInnerUp_R``). Channels left over are an error when ``strict`` (default: the
     animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them; shapes no
-    channel drives stay at 0. ``cache_bytes`` bounds the memory of evaluated samples kept for re-use. ``joints``, a
-    joint-angle trajectory of the rig's skeleton (e.g. the KD head of :func:`kdfaces.articulated.kd_joint_trajectory`),
-    drives the skeleton instead of the animation's joint curves (the face then rides on it).
+    channel drives stay at 0. An animation with channels none of which drives a shape (every one skipped or dropped)
+    is a :class:`~kdfaces.errors.KDInputError` either way: its face would not move. ``channel_map`` keys that are no
+    channel of any track are an error too. ``where`` names the animation in errors (default ``animation 'NAME'``;
+    a shot file passes ``FILE: animation``). ``cache_bytes`` bounds the memory of evaluated samples kept for re-use.
+    ``joints``, a joint-angle trajectory of the rig's skeleton (e.g. the KD head of
+    :func:`kdfaces.articulated.kd_joint_trajectory`), drives the skeleton instead of the animation's joint curves (the
+    face then rides on it).
     """
 
     def __init__(self, rig: BlendshapeRig, animation: FaceAnimation, *, channel_map: dict | None = None,
-                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20, joints=None):
+                 strict: bool | None = None, chunk: int = 16, cache_bytes: int = 256 * 2**20, joints=None,
+                 where: str | None = None):
         self.rig = rig
         self.animation = animation
         self.chunk = int(chunk)
@@ -107,16 +124,40 @@ class KinematicTrajectory:
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_max = int(cache_bytes) // (3 * rig.num_vertices * 3 * 8)
         strict = animation.strict_channels if strict is None else bool(strict)
-        where = f"animation {animation.name!r}"
+        where = f"animation {animation.name!r}" if where is None else where
         self._tracks, skipped = [], []
         self.channel_resolution = {}
+        cmap = dict(channel_map or {})
+        channels = [str(n) for t in animation.tracks for n in t.names]
+        keys = {alias_key(canonical_name(n)) for n in channels}
+        unknown = [k for k in cmap if alias_key(canonical_name(str(k))) not in keys]
+        if unknown:
+            import difflib
+
+            close = difflib.get_close_matches(str(unknown[0]), channels, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise KDInputError(f"{where}.map.{unknown[0]}: not a channel of the animation (map keys are the "
+                               f"animation's channel names, values the rig's shapes){hint}")
         for t in animation.tracks:
-            res = resolve_channels(t.names, rig.shape_names, channel_map=channel_map, where=where)
+            own = {alias_key(canonical_name(str(n))) for n in t.names}
+            track_map = {k: v for k, v in cmap.items() if alias_key(canonical_name(str(k))) in own}
+            res = resolve_channels(t.names, rig.shape_names, channel_map=track_map, where=where)
             skipped += res.skipped
             self.channel_resolution.update(res.how)
             self._tracks.append((res.pairs[:, 0], res.pairs[:, 1], t.curve))
         if skipped and strict:
             rig.shape_indices(skipped, where=where)  # raises, naming the first and the closest shapes
+        if channels and not any(len(shape) for _, shape, _ in self._tracks):
+            dropped = [n for n, how in self.channel_resolution.items() if how == "dropped"]
+            if len(dropped) == len(channels):
+                raise KDInputError(f"{where}.map: every one of the {len(channels)} channels is dropped (false), so "
+                                   "the face would not move; expected at least one channel mapped to a shape of rig "
+                                   f"{rig.name!r}")
+            example = rig.shape_names[0] if rig.shape_names else "<shape>"
+            raise KDInputError(f"{where}: rig {rig.name!r} has no shape for any of the {len(channels)} channels "
+                               f"({', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}), so the face would "
+                               f"not move; add [animation.map] entries, channel = rig shape(s) (e.g. "
+                               f"{channels[0]} = {example!r}), or name the rig's shapes after the channels")
         if skipped:
             warnings.warn(f"{where}: rig {rig.name!r} has no shape for channel(s) {', '.join(skipped)}; they are "
                           "skipped (map them in [animation.map], or set strict = true to make this an error)",
@@ -137,6 +178,20 @@ class KinematicTrajectory:
                 raise KDInputError(f"joints: expected a joint-angle trajectory of rig {rig.name!r}'s skeleton")
             self._joints = joints
         self._joint_override = joints is not None
+
+    def moves(self) -> bool:
+        """Whether x_K changes over time: a channel that drives a shape of the rig varies, the joints are driven
+        (by varying drives, or by a joint-angle trajectory), or the root translation varies. False: every frame is
+        the same pose, and so is every KD state."""
+        if self._joint_override:
+            return True
+        for channel, shape, curve in self._tracks:
+            if len(shape) and not curve.constant_channels()[np.unique(channel)].all():
+                return True
+        skel = self.animation.skeleton
+        if self._joint_drives and any(not d.curve.constant_channels().all() for d in skel.drives):
+            return True
+        return skel.root is not None and not skel.root.constant_channels().all()
 
     @property
     def state_shape(self) -> tuple[int, int]:

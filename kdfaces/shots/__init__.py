@@ -5,8 +5,9 @@ from .builtin import DEMO_SHOT, demo_animation
 from .demo import run_demo
 from .render import render_shot
 from .run import ShotRun, run_shot, run_summary, write_run_outputs
-from .shotfile import Shot, load_shot, parse_shot
+from .shotfile import Shot, WorkEstimate, estimate_work, load_shot, parse_shot
 from .view import add_view_parser, view_shot
 
 __all__ = ["DEMO_SHOT", "demo_animation", "run_demo", "render_shot", "ShotRun", "run_shot", "run_summary",
-           "write_run_outputs", "Shot", "load_shot", "parse_shot", "view_shot", "add_view_parser"]
+           "write_run_outputs", "Shot", "load_shot", "parse_shot", "view_shot", "add_view_parser",
+           "WorkEstimate", "estimate_work"]

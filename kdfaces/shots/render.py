@@ -129,9 +129,9 @@ def _render_command(args) -> dict:
     from .run import run_shot
     from .shotfile import load_shot
 
-    shot = load_shot(args.shot, cache_dir=user_cache_dir())
+    shot = load_shot(args.shot, cache_dir=user_cache_dir(), max_steps=args.max_steps)
     t0 = time.perf_counter()
-    run = run_shot(shot, window_s=args.window, progress=True)
+    run = run_shot(shot, window_s=args.window, progress=True, max_steps=args.max_steps)
     t1 = time.perf_counter()
     unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
     summary = render_shot(run, args.out, frames=args.frames, movie=not args.no_movie, movie_format=args.movie_format,
@@ -143,7 +143,8 @@ def _render_command(args) -> dict:
 
 
 def add_render_parser(subparsers) -> None:
-    """Add ``kdfaces render SHOT.toml [--out DIR] [--export usd|pc2 ...] [--frames N] [--no-movie] [--json]``."""
+    """Add ``kdfaces render SHOT.toml [--out DIR] [--export usd|pc2 ...] [--frames N] [--no-movie] [--max-steps N]
+    [--json]``."""
     from ..io.export import add_export_option
 
     ap = subparsers.add_parser("render", help="filmstrip, heat map, constraint markers and movie of a shot")
@@ -155,6 +156,9 @@ def add_render_parser(subparsers) -> None:
                     help="KD window δ [s], 'auto' or 'adaptive' (default: the shot's)")
     ap.add_argument("--frames", type=int, default=6, help="stills: constraint times, filled up to this many")
     ap.add_argument("--no-movie", action="store_true", help="skip the movie")
+    from .run import add_max_steps_option
+
+    add_max_steps_option(ap)
     ap.add_argument("--movie-format", choices=("mp4", "gif"), help="movie format (default mp4, GIF fallback)")
     add_export_option(ap)
     ap.add_argument("--json", action="store_true", help="print summary.json to stdout")

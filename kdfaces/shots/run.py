@@ -11,16 +11,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..defaults import MAX_STEPS
 from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_full, simulate_kd, window_steps
-from ..resources import format_bytes, memory_budget_bytes, progress_bar, single_threaded_blas
+from ..resources import memory_budget_bytes, progress_bar, single_threaded_blas
 from ..window import adaptive_windows
-from .shotfile import Shot, load_shot
+from .shotfile import Shot, estimate_work, load_shot
 
 __all__ = ["ShotRun", "run_shot", "kd_windows", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
-           "add_run_parser"]
+           "add_run_parser",
+           "add_max_steps_option"]
 
 
 @dataclass
@@ -78,7 +80,8 @@ class ShotRun:
 @single_threaded_blas()
 def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
              threads: int = 2, update: str | None = None, step_scale: float | None = None,
-             max_memory_bytes: int | None = None, progress: bool = False) -> ShotRun:
+             max_memory_bytes: int | None = None, progress: bool = False,
+             max_steps: float | None = MAX_STEPS) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
 
     ``window_s`` [s] (or ``"auto"``, ``"adaptive"``) overrides the shot's ``dynamics.window_s``. With
@@ -88,7 +91,11 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     their own adaptive windows again, except the constraints' own KD states, which keep the solve's window so the
     constraints hold exactly. ``update``/``step_scale`` override the solver's;
     ``max_memory_bytes`` bounds each KD batch (default half the available memory); ``progress`` shows bars for the
-    stages that take longer than two seconds. numpy's BLAS runs on one thread throughout
+    stages that take longer than two seconds. Before anything is built, sampled or allocated, the run's work is
+    estimated (:func:`~kdfaces.shots.shotfile.estimate_work`) and refused in one :class:`KDInputError` beyond
+    ``max_steps`` vertex-steps (default :data:`~kdfaces.defaults.MAX_STEPS`, None: no limit) or beyond the memory
+    budget; with an automatic window it is checked again once the window is known, and the window scan itself is
+    bounded by ``max_steps``. numpy's BLAS runs on one thread throughout
     (:func:`kdfaces.resources.single_threaded_blas`), so the kinematic, KD and IKD trajectories are the same bits on
     any machine and in :func:`kdfaces.bake.bake_shot`.
     """
@@ -98,33 +105,32 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
 
     if not isinstance(shot, Shot):
         shot = load_shot(shot)
+    if window is None:
+        window = shot.dynamics["window_s"]
+    if isinstance(window, bool) or not (window in ("auto", "adaptive") or (isinstance(window, int | float)
+                                                                          and window > 0)):
+        raise KDInputError(f"window: expected positive seconds, 'auto' or 'adaptive', got {window!r}")
+    budget = memory_budget_bytes(max_memory_bytes)
+    mode = window
+    estimate_work(shot, window_s=mode, solve=solve).check(max_steps, max_memory_bytes=budget)  # before anything
     model = shot.model()
     system = FaceSystem(model, device=device, threads=threads)
     traj = shot.trajectory
     h = shot.step_s
-    est = automatic_window(model, traj, step_s=h)
+    est = automatic_window(model, traj, step_s=h, max_steps=max_steps)
     auto = max(est.window_s, h)
-    if window is None:
-        window = shot.dynamics["window_s"]
     adaptive = window == "adaptive"
     if window in ("auto", "adaptive"):
         window = auto
-    if isinstance(window, str) or not (window > 0):
-        raise KDInputError(f"window: expected positive seconds, 'auto' or 'adaptive', got {window!r}")
+    if mode == "auto":  # the window is known now: the estimate again, with its steps
+        estimate_work(shot, window_s=mode, solve=solve, window_auto_s=auto).check(max_steps)
     times = shot.animation.frame_times
-    need = 4 * len(times) * model.num_vertices * 3 * 8  # x_K, x_KD, x_IKD of every frame, and one working copy
-    budget = memory_budget_bytes(max_memory_bytes)
-    if need > budget:
-        raise KDInputError(f"{shot.path}: {len(times):,} frames of {model.num_vertices:,} vertices need "
-                           f"{format_bytes(need)} for the kinematic, KD and IKD trajectories; expected at most the "
-                           f"budget of {format_bytes(budget)} (check animation.fps and the shot's length, bake long "
-                           "takes with the chunked bake, or raise --max-memory)")
     kinematic = traj.positions(times)
     extra = {}
     frame_windows = window
     t0 = _time.perf_counter()
     if adaptive:
-        frame_windows = adaptive_windows(system, traj, times, step_s=h).window_s
+        frame_windows = adaptive_windows(system, traj, times, step_s=h, max_steps=max_steps).window_s
     kd = simulate_kd(system, traj, times, frame_windows, step_s=h, max_memory_bytes=max_memory_bytes,
                      progress=progress)
     ms = 1e3 * (_time.perf_counter() - t0) / len(times)
@@ -145,7 +151,8 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
         with progress_bar("IKD sweeps", s["max_iterations"], progress) as bar:
             result = solve_ikd(system, traj, constraints, window_s=window, step_s=h,
                                callback=lambda it, err: bar.update(1), **s)
-        ikd_windows = _kd_windows(system, result, result.trajectory, times, window, h) if adaptive else window
+        ikd_windows = _kd_windows(system, result, result.trajectory, times, window, h, max_steps) if adaptive \
+            else window
         ikd = simulate_kd(system, result.trajectory, times, ikd_windows, step_s=h, max_memory_bytes=max_memory_bytes,
                           progress=progress)
         check = independent_check(system, result, window_s=window, step_s=h)
@@ -158,10 +165,10 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
                    ms_per_state=ms, **extra)
 
 
-def _kd_windows(system, result, trajectory, times, window_s: float, step_s: float):
+def _kd_windows(system, result, trajectory, times, window_s: float, step_s: float, max_steps=MAX_STEPS):
     """Adaptive windows of ``trajectory`` at ``times``; on the IKD-corrected trajectory, the constraints' KD states
     (t_i, and t_i − h for velocity constraints) keep the solve's window ``window_s``."""
-    w = adaptive_windows(system, trajectory, times, step_s=step_s).window_s.copy()
+    w = adaptive_windows(system, trajectory, times, step_s=step_s, max_steps=max_steps).window_s.copy()
     if result is not None and trajectory is result.trajectory:
         solved = [c.time_s for c in result.constraints]
         solved += [c.time_s - step_s for c in result.constraints if c.needs_previous]
@@ -264,8 +271,8 @@ def _run_command(args) -> dict:
     from ..resources import parse_bytes
 
     budget = None if args.max_memory is None else parse_bytes(args.max_memory)
-    shot = load_shot(args.shot, cache_dir=user_cache_dir())
-    run = run_shot(shot, window_s=args.window, max_memory_bytes=budget, progress=True)
+    shot = load_shot(args.shot, cache_dir=user_cache_dir(), max_steps=args.max_steps)
+    run = run_shot(shot, window_s=args.window, max_memory_bytes=budget, progress=True, max_steps=args.max_steps)
     out = Path(args.out)
     unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
     paths = write_run_outputs(run, out, exports=args.export, export_unit_m=unit)
@@ -333,7 +340,19 @@ def add_run_parser(subparsers) -> None:
                    help="KD window [s], 'auto' or 'adaptive' (overrides the shot's)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
                    help="memory budget of a KD batch, e.g. 4G (default: half the available memory)")
+    add_max_steps_option(p)
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_export_option(p)
     p.set_defaults(func=_run_command)
+
+
+def add_max_steps_option(parser) -> None:
+    """Add ``--max-steps N``: the most vertex-steps the command may plan (default
+    :data:`~kdfaces.defaults.MAX_STEPS`; see :func:`~kdfaces.shots.shotfile.estimate_work`)."""
+    from ..defaults import max_steps_argument
+
+    parser.add_argument("--max-steps", type=max_steps_argument, default=MAX_STEPS, metavar="N",
+                        help=f"refuse a shot whose work estimate (frames x steps per KD state x vertices, plus the "
+                             f"window scan and the IKD solve) exceeds N vertex-steps (default {MAX_STEPS:.0e}, about "
+                             "15 min on two cores; 'inf': no limit)")
 

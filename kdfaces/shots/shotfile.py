@@ -85,7 +85,7 @@ from ..rig.poses import kinematic_pose
 from .schema import RENAMED_KEYS, ShotFile, validate_shot
 
 __all__ = ["Shot", "load_shot", "parse_shot", "read_shot_table", "dynamics_model", "settle_time", "DYNAMICS_DEFAULTS",
-           "SOLVER_DEFAULTS"]
+           "SOLVER_DEFAULTS", "WorkEstimate", "estimate_work"]
 
 DYNAMICS_DEFAULTS = ShotFile().dynamics.model_dump()
 SOLVER_DEFAULTS = ShotFile().solver.model_dump()
@@ -134,8 +134,12 @@ class Shot:
         """The kinematic trajectory x_K of the shot's rig under its animation (built once)."""
         if not hasattr(self, "_trajectory"):
             self._trajectory = KinematicTrajectory(self.rig, self.animation, channel_map=self.channel_map,
-                                                   strict=self.strict_channels)
+                                                   strict=self.strict_channels, where=f"{self.path}: animation")
         return self._trajectory
+
+    def work_estimate(self, **kwargs) -> WorkEstimate:
+        """:func:`estimate_work` of this shot (keyword arguments as there)."""
+        return estimate_work(self, **kwargs)
 
     @property
     def step_s(self) -> float:
@@ -234,6 +238,121 @@ class Shot:
         return dataclasses.replace(c, index=i)
 
 
+@dataclass(frozen=True)
+class WorkEstimate:
+    """What simulating a shot will cost, from :func:`estimate_work` (nothing is sampled or simulated to know it).
+
+    Attributes:
+        frames: F, the frames of the shot; vertices: N; step_s: the simulation step h [s].
+        window: the KD window asked for: seconds, ``"auto"`` or ``"adaptive"``.
+        window_steps: n, simulation steps per KD state (``ceil(δ/h)``). Before the automatic window is known it is
+            its lower bound 1 (the automatic window is never shorter than a step; 0 for adaptive windows, whose
+            per-frame windows are found by their own scan), and ``lower_bound`` is True.
+        kd_passes: passes of KD over every frame (2 with constraints: KD and IKD).
+        scan_samples: step-grid times the window scans sample x_K at (0: none).
+        kd_steps, solve_steps, full_steps, scan_steps: vertex-steps of the KD of every frame, of the IKD solve (its
+            sweeps and the independent check), of the full simulations adaptive windows are checked against, and of
+            the window scans (each sampled vertex counts :data:`~kdfaces.defaults.SCAN_COST`).
+        vertex_steps: their sum, the number :data:`~kdfaces.defaults.MAX_STEPS` bounds.
+        memory_bytes: the trajectories of every frame held at once (x_K, x_KD, x_IKD and one working copy; one more
+            with adaptive windows) [bytes]; a chunked bake holds a chunk at a time instead.
+    """
+
+    path: Path
+    frames: int
+    vertices: int
+    step_s: float
+    window: object
+    window_steps: int
+    lower_bound: bool
+    kd_passes: int
+    scan_samples: int
+    kd_steps: float
+    solve_steps: float
+    full_steps: float
+    scan_steps: float
+    memory_bytes: int
+
+    @property
+    def vertex_steps(self) -> float:
+        """kd_steps + solve_steps + full_steps + scan_steps [vertex-steps]."""
+        return self.kd_steps + self.solve_steps + self.full_steps + self.scan_steps
+
+    def check(self, max_steps: float | None = defaults.MAX_STEPS, *, max_memory_bytes: int | None = None) -> None:
+        """Raise :class:`KDInputError` (one line naming the shot file, the sizes and what to change) when
+        :attr:`vertex_steps` exceeds ``max_steps`` (None: no limit) or, given ``max_memory_bytes``,
+        :attr:`memory_bytes` exceeds it."""
+        from ..resources import format_bytes
+
+        if max_steps is not None and self.vertex_steps > max_steps:
+            n = f"{'at least ' if self.lower_bound else ''}{self.window_steps:,} step"
+            n += "s" if self.window_steps != 1 else ""
+            parts = [f"{self.frames:,} frames x {n} per KD state x {self.vertices:,} vertices"
+                     + (f" x {self.kd_passes} (KD and IKD)" if self.kd_passes > 1 else "")]
+            if self.scan_steps:
+                parts.append(f"a window scan of {self.scan_samples:,} times")
+            if self.solve_steps:
+                parts.append("the IKD solve")
+            if self.full_steps:
+                parts.append("full simulations")
+            raise KDInputError(f"{self.path}: {' + '.join(parts)} plan {self.vertex_steps:.3g} vertex-steps, more "
+                               f"than --max-steps {max_steps:.3g}; expected a shorter shot (animation.start_s, "
+                               "end_s), a lower animation.fps, a shorter dynamics.window_s, or a larger --max-steps")
+        if max_memory_bytes is not None and self.memory_bytes > max_memory_bytes:
+            raise KDInputError(f"{self.path}: {self.frames:,} frames of {self.vertices:,} vertices need "
+                               f"{format_bytes(self.memory_bytes)} for the kinematic, KD and IKD trajectories; "
+                               f"expected at most the budget of {format_bytes(max_memory_bytes)} (check animation.fps "
+                               "and the shot's length, bake long takes with the chunked bake, or raise --max-memory)")
+
+
+def estimate_work(shot: Shot, *, window_s=None, solve: bool = True, window_auto_s: float | None = None,
+                  scan: bool = True) -> WorkEstimate:
+    """The work of simulating ``shot`` as :func:`~kdfaces.shots.run_shot` does, from its sizes alone: frames ×
+    steps per KD state × vertices, and memory (see :class:`WorkEstimate`; call :meth:`WorkEstimate.check` to refuse
+    beyond a limit). Made before the window scan, the IKD solve or any allocation, so it is instant for any shot.
+
+    ``window_s`` overrides the shot's ``dynamics.window_s`` (seconds, ``"auto"`` or ``"adaptive"``);
+    ``window_auto_s``, the automatic window once it is known [s], replaces the lower bound of one step per KD state;
+    ``solve``: the IKD solve and the KD of the corrected trajectory are counted when the shot has constraints;
+    ``scan``: the automatic window's scan of x_K over the step grid is counted (``run_shot`` always makes it, for
+    the summary; a bake only for ``"auto"``).
+    """
+    from ..kd import window_steps
+    from ..window import grid_size
+
+    a = shot.animation
+    h = shot.step_s
+    frames, vertices = a.num_frames, shot.rig.num_vertices
+    window = shot.dynamics["window_s"] if window_s is None else window_s
+    samples = grid_size(a, h)
+    lower = False
+    if window == "adaptive":
+        n, lower = 0, True
+    elif window == "auto":
+        if window_auto_s is None:
+            n, lower = 1, True
+        else:
+            n = window_steps(max(float(window_auto_s), h), h)
+    elif isinstance(window, str) or isinstance(window, bool) or not isinstance(window, int | float):
+        raise KDInputError(f"window: expected positive seconds, 'auto' or 'adaptive', got {window!r}")
+    else:
+        n = window_steps(float(window), h)
+    tables = shot.constraint_tables if solve else []
+    states = len(tables) + sum(1 for c in tables if c["kind"] == "velocity")  # velocity: x(t) and x(t − h)
+    passes = 2 if tables else 1
+    kd = float(passes) * frames * n * vertices
+    it = int(shot.solver["max_iterations"]) if tables else 0
+    solve_steps = float(it + 1) * states * max(n, 1) * vertices  # sweeps and the independent check
+    adaptive = window == "adaptive"
+    full = float(passes) * samples * vertices if adaptive else 0.0
+    scans = (1 if scan or window == "auto" else 0) + (passes if adaptive else 0)
+    scan_steps = float(scans) * samples * vertices * defaults.SCAN_COST
+    memory = (4 + adaptive) * frames * vertices * 3 * 8
+    return WorkEstimate(path=shot.path, frames=frames, vertices=vertices, step_s=h, window=window, window_steps=n,
+                        lower_bound=lower, kd_passes=passes, scan_samples=samples if scans else 0, kd_steps=kd,
+                        solve_steps=solve_steps, full_steps=full, scan_steps=scan_steps, memory_bytes=int(memory))
+
+
 def settle_time(dynamics: dict, rig, *, where: str = "dynamics"):
     """The settle time [s] of a ``[dynamics]`` table: a number, or a per-vertex (N,) map (the soft-tissue map, and
     parts with their own ``settle_time_s``)."""
@@ -274,7 +393,7 @@ def dynamics_model(dynamics: dict, rig, *, where: str = "dynamics", **overrides)
 
 
 def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
-    from ..io.livelinkface import livelinkface_animation
+    from ..io.livelinkface import check_stretch, livelinkface_animation, read_livelinkface
     from .builtin import demo_animation
 
     if a.source == "demo":
@@ -311,12 +430,11 @@ def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
         if not a.end_s > start:
             raise KDInputError(f"{where}.end_s: expected end_s > start_s ({start:g} s), got {a.end_s:g}")
         return FaceAnimation(tuple(tracks), SkeletonAnimation(drives), start, a.end_s, a.fps or 25.0, name="keys")
-    kwargs = {"fps": a.fps}
-    if a.start_s is not None:
-        kwargs["start"] = a.start_s
-    if a.end_s is not None:
-        kwargs["end"] = a.end_s
-    return livelinkface_animation(base / a.source, **kwargs)
+    take = read_livelinkface(base / a.source)
+    start = 0.0 if a.start_s is None else float(a.start_s)
+    end = float(take.times[-1]) if a.end_s is None else float(a.end_s)
+    check_stretch(take, start, end, names=(f"{where}.start_s", f"{where}.end_s"))
+    return livelinkface_animation(take, fps=a.fps, start=start, end=end)
 
 
 def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
@@ -326,11 +444,18 @@ def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
     return KeyframeCurve.create(times, v, interpolation=interpolation, where=where)
 
 
-def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cache_dir=None) -> Shot:
+def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cache_dir=None,
+               max_steps: float | None = None) -> Shot:
     """A :class:`Shot` from parsed TOML ``data``; ``path`` names the file in errors and anchors relative paths.
 
     ``rig`` (a path, "default", or a loaded :class:`~kdfaces.rig.BlendshapeRig`) replaces the file's
     ``[rig] source``; ``rig_units`` its ``units``. ``cache_dir`` keeps parsed OBJ-folder rigs by content hash.
+    ``max_steps`` [vertex-steps]: refuse a shot whose :func:`estimate_work` is larger (None: no check here;
+    :func:`~kdfaces.shots.run_shot` checks it anyway).
+
+    Beyond the schema, a shot must mean something: an animation in which nothing moves (every channel and head
+    angle holds one value, or the channels that change drive no shape of the rig) is an error unless the shot has
+    constraints (IKD then makes the motion), and so is an animation none of whose channels drives a shape.
     """
     from ..io.rigfiles import load_rig
     from ..rig.blendshapes import BlendshapeRig
@@ -372,7 +497,32 @@ def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cach
                 channel_map=dict(f.animation.map), strict_channels=strict)
     shot.settle_time()  # part names are checked now, not at the first simulation
     shot.constraints()  # validate targets, groups, widths, times and same-time conflicts up front
+    if not shot.constraint_tables and not shot.trajectory.moves():
+        raise KDInputError(_still_message(shot, f.animation, where))
+    if max_steps is not None:
+        estimate_work(shot).check(max_steps)
     return shot
+
+
+def _still_message(shot: Shot, a, where: str) -> str:
+    """The error for a shot in which nothing moves: what holds still, and what to change."""
+    traj = shot.trajectory
+    varying = [str(n) for t in shot.animation.tracks for n, c in zip(t.names, t.curve.constant_channels()) if not c]
+    unused = [n for n in varying if traj.channel_resolution.get(n) in ("skipped", "dropped")]
+    if unused:
+        return (f"{where}: animation: nothing moves: the channel(s) that change ({', '.join(unused[:3])}"
+                f"{', ...' if len(unused) > 3 else ''}) drive no shape of rig {shot.rig.name!r}; expected them mapped "
+                "in [animation.map] (channel = rig shape)")
+    if shot.animation.skeleton.drives and shot.rig.skeleton is None:
+        return (f"{where}: animation: nothing moves: only the head turns, and rig {shot.rig.name!r} has no "
+                "skeleton; expected blend-shape motion, or a rig with a neck/head skeleton")
+    if a.source in ("keys", "demo"):
+        return (f"{where}: animation: nothing moves (every track holds one value and the head does not turn), so "
+                "KD would return the still pose; expected keys that change (animation.tracks values, "
+                "animation.head angles) or [[constraints]] for IKD to meet")
+    return (f"{where}: animation.source: nothing moves in {a.source} between {shot.animation.start:g} and "
+            f"{shot.animation.end:g} s (every row holds the same weights and head angles), so KD would return the "
+            "still pose; expected a take with motion, another stretch (animation.start_s, end_s), or [[constraints]]")
 
 
 def read_shot_table(path) -> dict:
@@ -396,6 +546,9 @@ def read_shot_table(path) -> dict:
         raise KDInputError(f"{p}: not valid TOML ({e})") from None
 
 
-def load_shot(path, *, rig=None, rig_units: str | None = None, cache_dir=None) -> Shot:
-    """Read and validate a TOML shot file (``rig`` and ``rig_units`` replace its ``[rig]`` source and units)."""
-    return parse_shot(read_shot_table(path), Path(path), rig=rig, rig_units=rig_units, cache_dir=cache_dir)
+def load_shot(path, *, rig=None, rig_units: str | None = None, cache_dir=None,
+              max_steps: float | None = None) -> Shot:
+    """Read and validate a TOML shot file (``rig`` and ``rig_units`` replace its ``[rig]`` source and units;
+    ``max_steps`` refuses a shot whose work estimate is larger, see :func:`parse_shot`)."""
+    return parse_shot(read_shot_table(path), Path(path), rig=rig, rig_units=rig_units, cache_dir=cache_dir,
+                      max_steps=max_steps)

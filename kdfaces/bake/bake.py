@@ -305,7 +305,8 @@ def plan_bake(frames: int, vertices: int, chunk_frames: int, workers: int | None
 
 def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None = None,
               chunk_frames: int | None = None, window_s: float | None = None, max_memory_bytes: int | None = None,
-              cache_dir=None, progress: bool = False, callback=None) -> BakeResult:
+              cache_dir=None, progress: bool = False, callback=None,
+              max_steps: float | None = defaults.MAX_STEPS) -> BakeResult:
     """Bake the final trajectory (IKD applied when the shot has constraints) of every frame of the shot file
     ``shot`` into the zarr store at ``store``, on Dask.
 
@@ -320,6 +321,8 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
         chunk_frames: frames per task and per store chunk (default :data:`kdfaces.defaults.BAKE_CHUNK_FRAMES`).
         window_s: overrides the shot's ``dynamics.window_s``.
         max_memory_bytes: memory budget of each task's KD batch (default half a worker's available memory).
+        max_steps: refuse a shot whose work estimate exceeds this many vertex-steps, before anything runs
+            (:func:`~kdfaces.shots.shotfile.estimate_work`; default :data:`~kdfaces.defaults.MAX_STEPS`, None: none).
         cache_dir: where the client and the workers keep parsed rigs (None: nowhere).
         progress: a bar over chunks on stderr, and the Dask dashboard's address when there is one.
         callback: ``callback(record)`` after each computed chunk, in the calling thread (record: see
@@ -343,13 +346,13 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
     path = Path(shot).resolve()
     table = read_shot_table(path)
     text = path.read_bytes().decode("utf-8")
-    parsed = parse_shot(table, path, cache_dir=cache_dir)
+    parsed = parse_shot(table, path, cache_dir=cache_dir, max_steps=max_steps)
     k, workers = plan_bake(len(parsed.animation.frame_times), parsed.rig.num_vertices, k, workers,
                            local=scheduler is None)
     external = _connect(scheduler) if scheduler is not None else None  # a wrong address fails before the solve
     try:
         payload, info = _solve(parsed, path, text, table, window_s=window_s, max_memory_bytes=max_memory_bytes,
-                               k=k, cache_dir=cache_dir, progress=progress,
+                               k=k, cache_dir=cache_dir, progress=progress, max_steps=max_steps,
                                fingerprints=(input_fingerprint(path, text, table), code_fingerprint()),
                                payload_type=BakePayload)
         st = _open_store(Path(store).absolute(), payload.key, parsed.animation.frame_times, payload.vertices, k,
@@ -383,7 +386,7 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
 
 @single_threaded_blas()  # the window and the solve as kdfaces run computes them, to the bit
 def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_bytes, k, cache_dir, progress,
-           fingerprints, payload_type):
+           fingerprints, payload_type, max_steps=defaults.MAX_STEPS):
     """The client's part: the window (as ``kdfaces run`` resolves it) and the IKD solve; the tasks' payload."""
     from ..dynamics import FaceSystem
     from ..ikd.solver import solve_ikd
@@ -396,7 +399,7 @@ def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_byt
     w = shot.dynamics["window_s"] if window_s is None else window_s
     auto = eps = None
     if w == "auto":
-        est = automatic_window(model, traj, step_s=h)
+        est = automatic_window(model, traj, step_s=h, max_steps=max_steps)
         auto, eps = max(est.window_s, h), est.epsilon_m
         window = auto
     elif isinstance(w, str):
@@ -532,7 +535,7 @@ def _bake_command(args) -> dict:
     try:
         result = bake_shot(args.shot, store, workers=args.workers, scheduler=args.scheduler,
                            chunk_frames=args.chunk_frames, window_s=args.window, max_memory_bytes=budget,
-                           cache_dir=user_cache_dir(), progress=True)
+                           cache_dir=user_cache_dir(), progress=True, max_steps=args.max_steps)
     except KeyboardInterrupt:
         _report_kept(store)
         raise
@@ -607,6 +610,9 @@ def add_bake_parser(subparsers) -> None:
     p.add_argument("--window", type=float, default=None, help="KD window [s] (overrides the shot's)")
     p.add_argument("--max-memory", default=None, metavar="SIZE",
                    help="memory budget of a task's KD batch, e.g. 4G (default: half a worker's available memory)")
+    from ..shots.run import add_max_steps_option
+
+    add_max_steps_option(p)
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
     add_export_option(p)
     p.set_defaults(func=_bake_command)

@@ -17,6 +17,7 @@ import time
 import warnings
 from pathlib import Path
 
+from . import defaults
 from .errors import KDError
 
 __all__ = ["main", "build_parser", "configure_output", "execute", "command", "finish", "peak_memory_bytes"]
@@ -320,7 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--rig", default="default", help="rig: 'default', an .npz, or an OBJ folder")
     add_rig_units_option(demo)
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
-    demo.add_argument("--threads", type=int, default=2, help="threads stepping the KD batch (default 2)")
+    demo.add_argument("--threads", type=int, default=defaults.THREADS,
+                      help=f"threads stepping the KD batch (default {defaults.THREADS})")
     demo.add_argument("--offset-grid", type=int, default=None, metavar="N",
                       help="deprecated and ignored: the Fig. 9 analog moved to `kdfem demo --offset-grid N`")
     add_export_option(demo)

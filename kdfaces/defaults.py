@@ -9,12 +9,15 @@ from __future__ import annotations
 from .errors import KDInputError
 
 __all__ = [
-    "SETTLE_TIME_S", "DAMPING_RATIO", "SHAPE_MATCHING_ALPHA", "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
+    "SETTLE_TIME_S", "DAMPING_RATIO", "JOINT_SETTLE_TIME_S", "JOINT_DAMPING_RATIO", "SHAPE_MATCHING_ALPHA",
+    "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
     "CLUSTER_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
     "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
     "SOLVER_UPDATE",
-    "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "HAT_EDGE_LENGTH_FAC",
-    "HAT_ENVELOPE_FAC", "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
+    "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
+    "TET_EDGE_LENGTH_FAC", "TET_ENVELOPE_FAC", "TET_COARSEN", "YOUNGS_PA", "POISSON_RATIO", "DENSITY_KG_M3",
+    "MATERIAL_MODEL", "NEWTON_TOL_M", "ATTACH_DISTANCE_M", "OMEGA_MAX_RADPS", "V_MAX_MPS",
+    "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
     "WINDOW_MODES", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
     "max_steps_argument",
 ]
@@ -24,6 +27,11 @@ __all__ = [
 SETTLE_TIME_S = 0.25
 #: Damping ratio ζ (1 = critically damped, On the Beat eq. 4; < 1 overshoots, which is the secondary motion).
 DAMPING_RATIO = 0.3
+#: The skeletal KD's joint controller (:class:`kdfaces.articulated.SkeletalSystem`, On the Beat §4): settle time
+#: t̂ [s] and damping ratio ζ of each joint's PD (1: critically damped, eq. 4 as published). Another concept than
+#: the face's soft tissue above, which overshoots on purpose.
+JOINT_SETTLE_TIME_S = 0.2
+JOINT_DAMPING_RATIO = 1.0
 #: Müller shape-matching stiffness α ∈ [0, 1].
 SHAPE_MATCHING_ALPHA = 0.2
 #: "relative" damps ẋ − ẋ_K; "absolute" is the paper's −K_d·ẋ.
@@ -54,8 +62,11 @@ MAX_WINDOW_STEPS = 10_000
 MAX_SOLVE_WALL_S = 3600.0
 
 # --- IKD (§3.1, §4) ------------------------------------------------------------------------------------------------
-#: Width σ [s] of a constraint's correction bell.
+#: Width σ [s] of a constraint's correction bell (the ease-in width of an asymmetric bell).
 WIDTH_S = 0.3
+#: Ease-out width [s] of an asymmetric bell (after the constraint time): twice :data:`WIDTH_S`, so that an
+#: ``"asymmetric"`` bell without an explicit ``ease_out_s`` is asymmetric.
+EASE_OUT_S = 0.6
 #: Shape of the correction bell: "gaussian", "poly" or "asymmetric".
 CURVE = "gaussian"
 #: μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹ of end-effector constraints, relative to ‖J‖².
@@ -77,10 +88,35 @@ MAX_ITERATIONS = 20
 #: Largest per-vertex correction [m] before a target is reported out of reach.
 MAX_CORRECTION_M = 0.5
 
-# --- the FEM hat (kdfem) -------------------------------------------------------------------------------------------
-#: pytetwild target edge length and envelope, relative to the surface's bounding-box diagonal (a ~1k-tet mesh).
-HAT_EDGE_LENGTH_FAC = 0.09
-HAT_ENVELOPE_FAC = 0.004
+# --- threads ------------------------------------------------------------------------------------------------------
+#: CPU threads per KD step (the face: the calling thread and ``THREADS`` − 1 persistent workers share one state or
+#: split a batch; the hat: groups of whole windows in parallel). Two, everywhere: the demos, ``run_shot`` and the
+#: viewer always ran on two (so their outputs stay as they were), a face's results do not depend on it (bit for
+#: bit, tests/test_kd.py; the hat's agree within round-off), the KD step is ~1.8× faster on two cores, and a
+#: second thread costs little on one. Bake workers pass ``threads=1`` themselves (one Dask worker process per core).
+THREADS = 2
+
+# --- FEM objects (kdfem) -------------------------------------------------------------------------------------------
+#: pytetwild target edge length and envelope, relative to the surface's bounding-box diagonal, and whether it
+#: coarsens: a coarse (~1k-tet for the hat) simulation mesh in which the fine surface is embedded. One set for
+#: every mesher entry point (:func:`kdfem.geometry.tetrahedralize`, the hat, :func:`kdfem.modal.window_report` of a
+#: user's mesh). (0.06, 1e-3, False) gives a fine mesh that follows the surface tightly.
+TET_EDGE_LENGTH_FAC = 0.09
+TET_ENVELOPE_FAC = 0.004
+TET_COARSEN = True
+#: The FEM material (:class:`kdfem.fem.Material`): a floppy knitted hat. Young's modulus E [Pa], Poisson ratio ν [-],
+#: mass density ρ [kg/m³], energy ("neohookean": stable Neo-Hookean; "corotated").
+YOUNGS_PA = 3.0e3
+POISSON_RATIO = 0.3
+DENSITY_KG_M3 = 150.0
+MATERIAL_MODEL = "neohookean"
+#: Newton tolerance [m] of the FEM's backward-Euler step: the largest position update max|Δv|·h at convergence.
+NEWTON_TOL_M = 1e-6
+#: FEM nodes within this distance [m] of the head surface follow the head joint.
+ATTACH_DISTANCE_M = 0.02
+#: The worst-case jump of the bone's angular [rad/s] and linear [m/s] speed the modal window is sized for (eq. 30).
+OMEGA_MAX_RADPS = 4.0
+V_MAX_MPS = 2.0
 #: Rayleigh damping C = αM + βK: α [1/s], β [s].
 RAYLEIGH_ALPHA = 1.0
 RAYLEIGH_BETA = 0.01
@@ -155,3 +191,15 @@ def max_steps_argument(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"expected a positive number of vertex-steps (e.g. 1e10), got {text!r}")
     return value
+
+
+_RENAMED = {"HAT_EDGE_LENGTH_FAC": "TET_EDGE_LENGTH_FAC", "HAT_ENVELOPE_FAC": "TET_ENVELOPE_FAC"}
+
+
+def __getattr__(name: str):
+    if name in _RENAMED:
+        from .deprecation import warn_renamed
+
+        warn_renamed("kdfaces.defaults", name, _RENAMED[name])
+        return globals()[_RENAMED[name]]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

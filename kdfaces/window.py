@@ -22,7 +22,7 @@ import numpy as np
 from scipy.special import lambertw
 
 from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, default_step
-from .deprecation import renamed_kwargs
+from .deprecation import renamed_kwargs, warn_renamed
 from .errors import KDInputError
 from .motion.trajectory import scan_trajectory
 
@@ -45,14 +45,14 @@ def damping_regime(k, c):
     return str(out) if out.ndim == 0 else out
 
 
-@renamed_kwargs(epsilon="epsilon_m")
-def window_1d(initial_speed, k, c, *, epsilon_m: float):
+@renamed_kwargs(epsilon="epsilon_m", initial_speed="initial_speed_mps")
+def window_1d(initial_speed_mps, k, c, *, epsilon_m: float):
     """δ [s] for a unit-mass oscillator with stiffness ``k`` [1/s²] and damping ``c`` [1/s] started at x = 0 with
-    speed ``initial_speed`` [m/s], settling within ``epsilon_m`` [m] (see the module docstring for each branch).
+    speed ``initial_speed_mps`` [m/s], settling within ``epsilon_m`` [m] (see the module docstring for each branch).
 
     ``k`` and ``c`` may be arrays of the same shape (one window each); a scalar pair returns a float.
     """
-    v0 = float(initial_speed)
+    v0 = float(initial_speed_mps)
     k, c = np.asarray(k, dtype=np.float64), np.asarray(c, dtype=np.float64)
     eps = float(epsilon_m)
     if not (np.all(k > 0) and np.all(c > 0) and np.isfinite(k).all() and np.isfinite(c).all()):
@@ -86,16 +86,35 @@ class WindowEstimate:
     Attributes:
         window_s: δ [s], the largest over vertices.
         epsilon_m: ε [m].
-        acceleration_max: ẍ_max [m/s²] over vertices and step-grid times.
-        initial_speed: ẋ0 = ẍ_max·h [m/s].
+        acceleration_max_mps2: ẍ_max [m/s²] over vertices and step-grid times.
+        initial_speed_mps: ẋ0 = ẍ_max·h [m/s].
         regime: damping regime of the vertex that sets δ.
+
+    The names ``acceleration_max`` and ``initial_speed`` (keyword and attribute) still work for one release, with a
+    :class:`DeprecationWarning`.
     """
 
     window_s: float
     epsilon_m: float
-    acceleration_max: float
-    initial_speed: float
+    acceleration_max_mps2: float
+    initial_speed_mps: float
     regime: str
+
+    @property
+    def acceleration_max(self) -> float:
+        """Deprecated name of :attr:`acceleration_max_mps2`."""
+        warn_renamed("WindowEstimate", "acceleration_max", "acceleration_max_mps2")
+        return self.acceleration_max_mps2
+
+    @property
+    def initial_speed(self) -> float:
+        """Deprecated name of :attr:`initial_speed_mps`."""
+        warn_renamed("WindowEstimate", "initial_speed", "initial_speed_mps")
+        return self.initial_speed_mps
+
+
+WindowEstimate.__init__ = renamed_kwargs(acceleration_max="acceleration_max_mps2",
+                                         initial_speed="initial_speed_mps")(WindowEstimate.__init__)
 
 
 def grid_size(trajectory, step_s: float) -> int:
@@ -130,7 +149,7 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
 
     A system with its own ``automatic_window`` method (the FEM hat: the modal window of §5.3) answers itself.
     Otherwise ``system`` is a face system or model with per-unit-mass gains ``kp`` (N,) [1/s²], ``kd`` (N,) [1/s]
-    and ``diameter`` [m] (a :class:`~kdfaces.dynamics.FaceSystem` or :class:`~kdfaces.dynamics.FaceModel`), and
+    and ``diameter_m`` [m] (a :class:`~kdfaces.dynamics.FaceSystem` or :class:`~kdfaces.dynamics.FaceModel`), and
     §5.2 applies: ẍ_max is the largest ‖ẍ_K‖ over vertices at ``times`` (default the step grid over the shot),
     ẋ0 = ẍ_max·h, and each distinct gain pair gets its own 1-D window; the largest is returned (shape matching is
     not modelled, it only couples vertices). ``step_s`` [s] defaults to the frame interval; ``epsilon_m`` [m] to
@@ -142,11 +161,11 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     if own is not None:
         return own(trajectory, step_s=step_s, epsilon_m=epsilon_m, times=times)
     model = getattr(system, "model", system)
-    if not all(hasattr(model, a) for a in ("kp", "kd", "diameter")):
+    if not all(hasattr(model, a) for a in ("kp", "kd", "diameter_m")):
         raise KDInputError(f"automatic_window: {type(system).__name__} has neither its own automatic_window nor "
-                           "per-vertex gains kp, kd and a diameter")
+                           "per-vertex gains kp, kd and a diameter_m")
     h = default_step(trajectory, step_s)
-    epsilon = DEFAULT_EPSILON_FRACTION * model.diameter if epsilon_m is None else float(epsilon_m)
+    epsilon = DEFAULT_EPSILON_FRACTION * model.diameter_m if epsilon_m is None else float(epsilon_m)
     n_vertices = int(getattr(model, "num_vertices", np.size(model.kp)))
     check_scan(grid_size(trajectory, h) if times is None else np.size(times), n_vertices, max_steps)
     t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
@@ -158,8 +177,8 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     windows = np.atleast_1d(window_1d(v0, model.kp, model.kd, epsilon_m=epsilon))
     j = int(np.argmax(windows))
     kp, kd = np.broadcast_to(model.kp, windows.shape), np.broadcast_to(model.kd, windows.shape)
-    return WindowEstimate(window_s=float(windows[j]), epsilon_m=float(epsilon), acceleration_max=acc_max,
-                          initial_speed=v0, regime=str(damping_regime(kp[j], kd[j])))
+    return WindowEstimate(window_s=float(windows[j]), epsilon_m=float(epsilon), acceleration_max_mps2=acc_max,
+                          initial_speed_mps=v0, regime=str(damping_regime(kp[j], kd[j])))
 
 
 # --- adaptive per-time windows (§6.4's future work) -----------------------------------------------------------------
@@ -345,7 +364,7 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     """The smallest KD window at each of ``times`` whose truncation error is bounded by ε (``window_s="adaptive"``).
 
     A system with its own ``adaptive_windows`` method (the FEM hat: from its modal envelope) answers itself.
-    Otherwise ``system`` is a face system or model (gains ``kp``, ``kd`` (N,), ``diameter``, and optionally
+    Otherwise ``system`` is a face system or model (gains ``kp``, ``kd`` (N,), ``diameter_m``, and optionally
     ``shape_matching_alpha``, ``damping_mode``, ``rigid_mask``); ε = ``epsilon_m`` [m] bounds every vertex, default
     0.1 % of the diameter as for :func:`automatic_window`. ``times`` [s] default to the step grid; ``step_s`` h to
     the frame interval; ``start_s`` (default the shot start) is where the full simulation starts. The scan of x_K is
@@ -390,11 +409,11 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     if own is not None:
         return own(trajectory, times, step_s=step_s, epsilon_m=epsilon_m, start_s=start_s)
     model = getattr(system, "model", system)
-    if not all(hasattr(model, a) for a in ("kp", "kd", "diameter")):
+    if not all(hasattr(model, a) for a in ("kp", "kd", "diameter_m")):
         raise KDInputError(f"adaptive_windows: {type(system).__name__} has neither its own adaptive_windows nor "
-                           "per-vertex gains kp, kd and a diameter")
+                           "per-vertex gains kp, kd and a diameter_m")
     h = default_step(trajectory, step_s)
-    eps = DEFAULT_EPSILON_FRACTION * model.diameter if epsilon_m is None else float(epsilon_m)
+    eps = DEFAULT_EPSILON_FRACTION * model.diameter_m if epsilon_m is None else float(epsilon_m)
     if not (eps > 0 and np.isfinite(eps)):
         raise KDInputError(f"epsilon_m: expected a positive distance in metres, got {eps}")
     s = float(getattr(trajectory, "start", 0.0) if start_s is None else start_s)

@@ -36,12 +36,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help=f"KD window δ [s], or 'adaptive': one per frame (default {defaults.HAT_WINDOW_S})")
     demo.add_argument("--step", "--h", dest="step", type=float, default=defaults.HAT_STEP_S,
                       help=f"simulation step [s] (default {defaults.HAT_STEP_S})")
-    demo.add_argument("--edge-length-fac", type=float, default=defaults.HAT_EDGE_LENGTH_FAC,
-                      help=f"pytetwild edge length / bbox diagonal (default {defaults.HAT_EDGE_LENGTH_FAC}, ~1k tets)")
+    demo.add_argument("--edge-length-fac", type=float, default=defaults.TET_EDGE_LENGTH_FAC,
+                      help=f"pytetwild edge length / bbox diagonal (default {defaults.TET_EDGE_LENGTH_FAC}, ~1k tets)")
     demo.add_argument("--frame-stride", type=int, default=2,
                       help="evaluate every n-th frame of the shot (default 2; summary fps is the evaluated rate)")
-    demo.add_argument("--threads", type=int, default=2,
-                      help="threads running the KD batch's windows (default 2)")
+    demo.add_argument("--threads", type=int, default=defaults.THREADS,
+                      help=f"threads running the KD batch's windows (default {defaults.THREADS})")
     demo.add_argument("--offset-grid", type=int, default=3, metavar="N",
                       help="N x N hat-tip targets of the Fig. 9 analog, IKD through the head posture "
                            "(default 3, about 40 s; 0 skips it)")
@@ -83,7 +83,7 @@ def _window(args) -> dict:
 
     from .modal.window import window_report
 
-    run = window_report(args.surface, out=args.out, omega_max=args.omega_max, v_max=args.v_max,
+    run = window_report(args.surface, out=args.out, omega_max_radps=args.omega_max, v_max_mps=args.v_max,
                         rayleigh_alpha=args.alpha, rayleigh_beta=args.beta, edge_length_fac=args.edge_length_fac,
                         scale=args.scale, attach_distance_m=args.attach_distance, attach_below_m=args.attach_below,
                         modes=args.modes, nonlinear=args.nonlinear, sweep=args.sweep, sweep_stride=args.sweep_stride,
@@ -96,16 +96,21 @@ def _add_window_parser(subparsers):
     p = subparsers.add_parser("window", help="modal KD window of an attached object (§5.3) with a verified report")
     p.add_argument("surface", nargs="?", default=None, metavar="SURFACE_MESH",
                    help="closed surface .obj/.ply/.stl/.off in metres (default: the procedural hat)")
-    p.add_argument("--omega-max", type=float, default=4.0, help="largest bone angular speed jump [rad/s] (4)")
-    p.add_argument("--v-max", type=float, default=2.0, help="largest bone linear speed jump [m/s] (2)")
-    p.add_argument("--alpha", type=float, default=1.0, help="Rayleigh mass damping α [1/s] (1)")
-    p.add_argument("--beta", type=float, default=0.01, help="Rayleigh stiffness damping β [s] (0.01)")
+    p.add_argument("--omega-max", type=float, default=defaults.OMEGA_MAX_RADPS,
+                   help=f"largest bone angular speed jump [rad/s] ({defaults.OMEGA_MAX_RADPS:g})")
+    p.add_argument("--v-max", type=float, default=defaults.V_MAX_MPS,
+                   help=f"largest bone linear speed jump [m/s] ({defaults.V_MAX_MPS:g})")
+    p.add_argument("--alpha", type=float, default=defaults.RAYLEIGH_ALPHA,
+                   help=f"Rayleigh mass damping α [1/s] ({defaults.RAYLEIGH_ALPHA:g})")
+    p.add_argument("--beta", type=float, default=defaults.RAYLEIGH_BETA,
+                   help=f"Rayleigh stiffness damping β [s] ({defaults.RAYLEIGH_BETA:g})")
     p.add_argument("--out", default="kd-out/window", help="output folder (default kd-out/window)")
     p.add_argument("--json", action="store_true", help="print window.json to stdout")
-    p.add_argument("--edge-length-fac", type=float, default=0.09, help="tet edge / bbox diagonal (0.09)")
+    p.add_argument("--edge-length-fac", type=float, default=defaults.TET_EDGE_LENGTH_FAC,
+                   help=f"tet edge / bbox diagonal ({defaults.TET_EDGE_LENGTH_FAC:g})")
     p.add_argument("--scale", type=float, default=1.0, help="file units → metres (1)")
-    p.add_argument("--attach-distance", type=float, default=0.02,
-                   help="attach nodes within this distance of the head surface [m] (0.02)")
+    p.add_argument("--attach-distance", type=float, default=defaults.ATTACH_DISTANCE_M,
+                   help=f"attach nodes within this distance of the head surface [m] ({defaults.ATTACH_DISTANCE_M:g})")
     p.add_argument("--attach-below", type=float, default=None, metavar="Y",
                    help="attach the nodes with y ≤ Y [m] instead (a mesh not on the head; no Fig. 10 sweep)")
     p.add_argument("--modes", type=int, default=6, help="modes computed and reported (6)")

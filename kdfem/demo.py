@@ -33,8 +33,8 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
 @renamed_kwargs(window="window_s", h="step_s")
 def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WINDOW_S,
                  step_s: float = defaults.HAT_STEP_S,
-                 edge_length_fac: float = defaults.HAT_EDGE_LENGTH_FAC, frame_stride: int = 2,
-                 offset_grid: int = OFFSET_GRID_SIZE, threads: int = 2, cache_dir=None) -> dict:
+                 edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC, frame_stride: int = 2,
+                 offset_grid: int = OFFSET_GRID_SIZE, threads: int = defaults.THREADS, cache_dir=None) -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | reduced KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png, reduced_error_vs_full.png and summary.json; returns the

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import defaults
 from .builtin import DEMO_SHOT
 
 __all__ = ["demo_face_model", "run_demo", "DEMO_SWEEP_S", "DEMO_OFFSETS_M", "OFFSET_GRID_MOVED"]
@@ -43,7 +44,7 @@ def _largest_deviation_frame(run) -> int:
     return int(np.argmax(np.linalg.norm(run.kd - run.kinematic, axis=-1).max(axis=1)))
 
 
-def run_demo(out, *, rig="default", threads: int = 2, exports=(), movie: bool = True,
+def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(), movie: bool = True,
              export_unit_m: float = 1.0, progress: bool = False, offset_grid=None, offset_grid_size=None) -> dict:
     """Run the demo shot and write everything a person looks at; returns summary.json's content.
 

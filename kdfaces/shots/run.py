@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..defaults import MAX_STEPS
+from ..defaults import MAX_STEPS, THREADS
 from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
@@ -79,7 +79,7 @@ class ShotRun:
 @renamed_kwargs(window="window_s", damping="step_scale")
 @single_threaded_blas()
 def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
-             threads: int = 2, update: str | None = None, step_scale: float | None = None,
+             threads: int = THREADS, update: str | None = None, step_scale: float | None = None,
              max_memory_bytes: int | None = None, progress: bool = False,
              max_steps: float | None = MAX_STEPS) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.

@@ -200,7 +200,7 @@ class Shot:
         if kind in ("pose", "subset", "end_effector"):
             if tt.get("obj") is not None:
                 try:
-                    pose, _ = read_obj(self.path.parent / tt["obj"], scale=self.rig.source_unit_m)
+                    pose, _ = read_obj(self.path.parent / tt["obj"], unit_m=self.rig.source_unit_m)
                 except KDInputError as e:
                     raise KDInputError(f"{where}.target.obj: {e}") from None
                 if pose.shape != (n, 3):
@@ -244,7 +244,7 @@ class WorkEstimate:
 
     Attributes:
         frames: F, the frames of the shot; vertices: N; step_s: the simulation step h [s].
-        window: the KD window asked for: seconds, ``"auto"`` or ``"adaptive"``.
+        window_s: the KD window asked for: seconds, ``"auto"`` or ``"adaptive"``.
         window_steps: n, simulation steps per KD state (``ceil(δ/h)``). Before the automatic window is known it is
             its lower bound 1 (the automatic window is never shorter than a step; 0 for adaptive windows, whose
             per-frame windows are found by their own scan), and ``lower_bound`` is True.
@@ -262,7 +262,7 @@ class WorkEstimate:
     frames: int
     vertices: int
     step_s: float
-    window: object
+    window_s: object
     window_steps: int
     lower_bound: bool
     kd_passes: int
@@ -348,7 +348,7 @@ def estimate_work(shot: Shot, *, window_s=None, solve: bool = True, window_auto_
     scans = (1 if scan or window == "auto" else 0) + (passes if adaptive else 0)
     scan_steps = float(scans) * samples * vertices * defaults.SCAN_COST
     memory = (4 + adaptive) * frames * vertices * 3 * 8
-    return WorkEstimate(path=shot.path, frames=frames, vertices=vertices, step_s=h, window=window, window_steps=n,
+    return WorkEstimate(path=shot.path, frames=frames, vertices=vertices, step_s=h, window_s=window, window_steps=n,
                         lower_bound=lower, kd_passes=passes, scan_samples=samples if scans else 0, kd_steps=kd,
                         solve_steps=solve_steps, full_steps=full, scan_steps=scan_steps, memory_bytes=int(memory))
 
@@ -473,7 +473,7 @@ def parse_shot(data: dict, path, *, rig=None, rig_units: str | None = None, cach
         scale = f.rig.scale if rig is None and rig_units is None else None
         rig_path = src if src == "default" or rig is not None else path.parent / src
         try:
-            rig_obj = load_rig(rig_path, units=units, scale=scale, cache_dir=cache_dir)
+            rig_obj = load_rig(rig_path, units=units, unit_m=scale, cache_dir=cache_dir, unit_name="scale")
         except KDInputError as e:
             raise KDInputError(f"{where}: rig.source: {e}") from None
     try:

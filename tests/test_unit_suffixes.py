@@ -25,7 +25,6 @@ LEFT = {
     ("start", "livelinkface_animation"): "being renamed with the Live Link Face rework (in progress)",
     ("end", "livelinkface_animation"): "being renamed with the Live Link Face rework (in progress)",
     ("window", "ModalAnalysis"): "a ModalWindow (its window_s is the seconds), not a length of time",
-    ("window", "WorkEstimate"): "new with the work estimate (#23): to be window_s like run_shot's, by its owner",
 }
 
 

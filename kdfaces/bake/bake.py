@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import defaults
-from ..errors import KDError, KDInputError, KDIOError, KDNumericalError
+from ..errors import KDError, KDInputError, KDIOError, KDNumericalError, check_count
 from ..resources import progress_bar, single_threaded_blas
 from .store import BakeStore
 
@@ -144,11 +144,7 @@ def default_store_path(out) -> Path:
 
 
 def _positive_int(value, what: str) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or int(value) != value or value < 1:
-        raise KDInputError(f"{what}: expected a whole number ≥ 1, got {value!r}")
-    return int(value)
+    return None if value is None else check_count(value, what)
 
 
 #: How long a ``--scheduler`` address may take to answer Dask's handshake before the bake gives up [s].
@@ -408,6 +404,14 @@ def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_byt
         window = float(w)
         if not window > 0:
             raise KDInputError(f"window: expected positive seconds, got {window}")
+    n = window_steps(window, h) if not isinstance(window, str) else 0
+    if n and max_memory_bytes is not None:  # a budget a task cannot keep fails here, in one line, not in a worker
+        from ..resources import format_bytes, memory_budget_bytes
+
+        need = FaceSystem(model, device="cpu", threads=1).memory_bytes(1, n + 1)
+        if need > memory_budget_bytes(max_memory_bytes):
+            raise KDInputError(f"--max-memory {format_bytes(max_memory_bytes)}: one KD state needs "
+                               f"{format_bytes(need)} ({n} steps); give a larger --max-memory or a shorter --window")
     result = None
     correction = None
     constraints = shot.constraints()
@@ -423,7 +427,6 @@ def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_byt
         correction = final.correction
     # the trajectory bake a worker keeps between chunks: the rows of about two chunks' windows, not the take's, so
     # a worker's memory does not grow with the take (rows are x_K, ẋ_K at grid times: re-baking gives the same)
-    n = window_steps(window, h) if not isinstance(window, str) else 0
     row_bytes = 4 * 3 * 4 * model.num_vertices
     max_bake = 2 * (k + n + 1) * row_bytes if n else None
     payload = payload_type(shot_text=text, shot_path=str(path), inputs=fingerprints[0], code=fingerprints[1],

@@ -70,9 +70,11 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
         A summary dict: outputs (relative to ``out``), the still times [s], deviation maxima [mm], the
         median render time per movie frame [s].
     """
+    from ..errors import check_count
     from ..io.export import export_trajectory
     from .run import strip_times
 
+    frames = check_count(frames, "frames")
     out = Path(out)
     shot = run.shot
     rig = shot.rig

@@ -48,6 +48,8 @@ def test_demo_kd_and_ikd_summary(demo_run):
     for c in ikd["constraints"]:  # the mesh's floor under each smooth lift's seam ratio; none for the pose lift
         assert (c["seam_ratio_bound"] is None) == (c["kind"] == "pose")
         assert c["seam_ratio_bound"] is None or 0.0 < c["seam_ratio_bound"] <= c["seam_ratio"]
+        assert (c["gradient_ratio"] is None) == (c["kind"] == "pose")  # 1: a linear ramp over the falloff
+        assert c["gradient_ratio"] is None or c["gradient_ratio"] > 0.0
     assert ikd["lift_factorizations"] == 3  # chin, lips, brows: once each (the pose lifts as before)
 
 

@@ -581,13 +581,14 @@ def bake_summary(result: BakeResult, out, paths) -> dict:
     if r is not None:  # as kdfaces run reports it, without its independent check
         seams = r.seam_ratios(shot.rig.faces) or [None] * len(r.constraints)
         bounds = r.seam_bounds() or [None] * len(r.constraints)
+        gradients = r.gradient_ratios() or [None] * len(r.constraints)
         s["ikd"] = {"converged": bool(r.converged), "reason": r.reason, "iterations": int(r.iterations),
                     "wall_s": float(r.wall_s), "update": r.update, "kd_states_simulated": int(r.kd_states),
                     "constraints": [
                         {"label": c.label, "time_s": c.time_s, "kind": c.kind, "unit": c.unit,
                          "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i]),
                          "seam_ratio": None if seams[i] is None else float(seams[i]),
-                         "seam_ratio_bound": bounds[i]}
+                         "seam_ratio_bound": bounds[i], "gradient_ratio": gradients[i]}
                         for i, c in enumerate(r.constraints)]}
     return s
 

@@ -13,12 +13,12 @@ from .constraints import (
     velocity_constraint,
 )
 from .corrections import CorrectedTrajectory, Correction, Slot
-from .lifts import Surface, SurfaceLift, seam_ratio
+from .lifts import Surface, SurfaceLift, gradient_ratio, seam_ratio
 from .solver import IKDResult, independent_check, solve_ikd
 
 __all__ = [
     "AsymmetricBell", "GaussianBasis", "PolyBell", "make_basis", "Constraint", "end_effector_constraint",
     "plane_constraint", "pose_constraint", "subset_constraint", "velocity_constraint", "Clearance",
     "clearance_constraint", "CorrectedTrajectory", "Correction", "Slot", "IKDResult", "independent_check",
-    "solve_ikd", "Surface", "SurfaceLift", "seam_ratio",
+    "solve_ikd", "Surface", "SurfaceLift", "seam_ratio", "gradient_ratio",
 ]

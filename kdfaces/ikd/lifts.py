@@ -24,7 +24,7 @@ lifted; every later lift is a back-substitution (the same spirit as the paper's 
 
 Distances are exact polyhedral geodesics (``igl.exact_geodesic``) on edge- and vertex-manifold meshes of up to
 :data:`EXACT_GEODESIC_MAX_VERTICES` vertices (0.2–0.6 s per constraint on the 4.5k-vertex default head; the
-algorithm grows faster than linearly, seconds at 20k). On larger or non-manifold meshes they are shortest paths
+algorithm grows faster than linearly, 1–3 s at 19k). On larger or non-manifold meshes they are shortest paths
 along edges and across the diagonals of neighbouring triangle pairs: robust on any triangle soup, and 3 % longer
 than the geodesic distance on average on the default head (at most 10 % on a regular grid, ~20 % at a few
 vertices near the mouth), so the falloff region is a little smaller. Exactly coincident vertices (split UV seams)
@@ -38,6 +38,12 @@ along a path of mesh edges, so some edge carries at least 1/K of it, K the numbe
 :attr:`SurfaceLift.seam_bound` is that floor for the lift's region — no field that holds the far vertices at zero,
 smooth or not, has a smaller :func:`seam_ratio` on this mesh — so a seam ratio can only go below it with a larger
 ``falloff_m`` or a finer mesh.
+
+A measure of smoothness that does not depend on the mesh is :func:`gradient_ratio`: the steepest slope of the
+correction's magnitude along any edge, max |‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖, in units of the slope of a linear ramp
+from the largest magnitude to zero over ``falloff_m``, max ‖f‖ / falloff_m. A linear ramp over the falloff gives 1
+(the harmonic lift on a strip, exactly); the biharmonic lift, flat at both ends, is steeper in between; the sharp
+lift, a jump over one edge of length ℓ, gives falloff_m / ℓ (10 for a 5 mm edge and a 5 cm falloff).
 """
 
 from __future__ import annotations
@@ -49,13 +55,14 @@ import scipy.sparse.csgraph as csgraph
 from .. import defaults
 from ..errors import KDInputError
 
-__all__ = ["ENERGIES", "EXACT_GEODESIC_MAX_VERTICES", "Surface", "SurfaceLift", "mesh_edges", "seam_ratio"]
+__all__ = ["ENERGIES", "EXACT_GEODESIC_MAX_VERTICES", "Surface", "SurfaceLift", "mesh_edges", "seam_ratio",
+           "gradient_ratio"]
 
 #: Smoothness energies of a lift: "biharmonic" (Lᵀ M⁻¹ L) or "harmonic" (−L).
 ENERGIES = ("biharmonic", "harmonic")
 #: Meshes with more (welded) vertices measure the falloff along edges and triangle-pair diagonals instead of with
 #: exact geodesics (see the module docstring).
-EXACT_GEODESIC_MAX_VERTICES = 10_000
+EXACT_GEODESIC_MAX_VERTICES = 20_000
 #: Vertices closer than this fraction of the bounding-box diagonal are welded (exact duplicates in practice).
 WELD_FRACTION = 1e-9
 #: Regulariser ε·(mean diagonal of Q / mean vertex area)·M, added only where an end effector's falloff region
@@ -84,6 +91,33 @@ def seam_ratio(field, faces=None, *, edges=None) -> float:
     if top == 0.0 or len(e) == 0:
         return 0.0
     return float(np.linalg.norm(f[e[:, 0]] - f[e[:, 1]], axis=-1).max()) / top
+
+
+def gradient_ratio(field, vertices, falloff_m: float, faces=None, *, edges=None) -> float:
+    """max over mesh edges of |‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖ × ``falloff_m`` / max over vertices of ‖f_v‖, for a
+    field ``field`` (N, 3) (or (N,) magnitudes) on rest positions ``vertices`` (N, 3) [m].
+
+    1 for a correction whose magnitude falls linearly from its largest value to zero over ``falloff_m`` [m]; the
+    ratio of the steepest slope of the correction's magnitude to that ramp's, whatever the edge lengths (see the
+    module docstring). Edges of zero length (welded copies of one point) are left out. Give ``faces`` (F, 3) or
+    precomputed ``edges`` (E, 2). A zero field: 0.
+    """
+    if not (np.isfinite(falloff_m) and falloff_m > 0):
+        raise KDInputError(f"gradient_ratio: falloff_m must be a positive number of metres, got {falloff_m}")
+    f = np.asarray(field, dtype=np.float64)
+    mag = np.linalg.norm(f, axis=-1) if f.ndim == 2 else np.abs(f)
+    x = np.asarray(vertices, dtype=np.float64)
+    e = mesh_edges(faces) if edges is None else np.asarray(edges, dtype=np.int64)
+    top = float(mag.max()) if mag.size else 0.0
+    if top == 0.0 or len(e) == 0:
+        return 0.0
+    length = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1)
+    diameter = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+    keep = length > WELD_FRACTION * max(diameter, 1e-300)
+    if not keep.any():
+        return 0.0
+    slope = np.abs(mag[e[keep, 0]] - mag[e[keep, 1]]) / length[keep]
+    return float(slope.max()) * float(falloff_m) / top
 
 
 class SurfaceLift:
@@ -233,6 +267,7 @@ class Surface:
             raise KDInputError(f"surface: faces index vertices outside [0, {len(v)})")
         self.energy = energy
         self.num_vertices = len(v)
+        self._rest = v
         self.edges = mesh_edges(f)
         diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
         self.diameter = diameter
@@ -392,6 +427,15 @@ class Surface:
     def seam_ratio(self, field) -> float:
         """:func:`seam_ratio` of ``field`` (N, 3) over this mesh's edges."""
         return seam_ratio(field, edges=self.edges)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """The rest positions (N, 3) [m] the surface was built on."""
+        return self._rest
+
+    def gradient_ratio(self, field, falloff_m: float) -> float:
+        """:func:`gradient_ratio` of ``field`` (N, 3) over this mesh's edges at its rest positions."""
+        return gradient_ratio(field, self.vertices, falloff_m, edges=self.edges)
 
 
 def _is_manifold(faces: np.ndarray, n: int) -> bool:

@@ -61,7 +61,7 @@ from ..kd import simulate_kd
 from .clearance import Clearance
 from .constraints import POINT_KINDS, Constraint
 from .corrections import POSITION, CorrectedTrajectory, Correction, Slot
-from .lifts import Surface, seam_ratio
+from .lifts import Surface, gradient_ratio, seam_ratio
 
 __all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "independent_check", "UPDATES",
            "OffGridConstraintWarning"]
@@ -145,6 +145,16 @@ class IKDResult:
             return None
         edges = self.surface.edges if faces is None else None
         return [seam_ratio(self.correction_at(i), faces, edges=edges) for i in range(len(self.constraints))]
+
+    def gradient_ratios(self) -> list[float | None] | None:
+        """Each constraint's :func:`~kdfaces.ikd.gradient_ratio` of :meth:`correction_at` on the surface it was
+        lifted on: the steepest slope of the correction's magnitude along a mesh edge, in units of a linear ramp
+        from its largest value to zero over the constraint's ``falloff_m`` (1: that ramp); None for a constraint
+        that lifts sharply (no falloff). None when the residuals were not lifted on a surface."""
+        if self.surface is None:
+            return None
+        return [gradient_ratio(self.correction_at(i), self.surface.vertices, c.falloff_m, edges=self.surface.edges)
+                if c.surface_lift(self.surface) is not None else None for i, c in enumerate(self.constraints)]
 
     def seam_bounds(self) -> list[float | None] | None:
         """Each constraint's floor on its seam ratio (:attr:`~kdfaces.ikd.SurfaceLift.seam_bound`: no correction

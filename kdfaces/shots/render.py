@@ -99,7 +99,8 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
         outputs.append(constraint_panel(out / "constraints.png", rig.faces, constraints, panel_rows, step_s=shot.step_s,
                                         reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)",
                                         seam_ratios=ikd_result.seam_ratios(rig.faces),
-                                        seam_bounds=ikd_result.seam_bounds()))
+                                        seam_bounds=ikd_result.seam_bounds(),
+                                        gradient_ratios=ikd_result.gradient_ratios()))
     rows = {"kinematic": run.kinematic, "KD": run.kd}
     if run.ikd is not None:
         rows["IKD"] = run.ikd

@@ -193,11 +193,14 @@ def ikd_summary(run: ShotRun) -> dict:
     time (f, or ḟ for a velocity constraint) divided by the largest ‖f‖ (1: a tear at the group's boundary; see
     :func:`~kdfaces.ikd.seam_ratio`), its ``falloff_m``, and ``seam_ratio_bound``: the smallest seam ratio any
     correction that is zero beyond ``falloff_m`` can have on this mesh (:attr:`~kdfaces.ikd.SurfaceLift.seam_bound`;
-    null for a constraint that lifts sharply).
+    null for a constraint that lifts sharply), and ``gradient_ratio``: the steepest slope of the correction's
+    magnitude along an edge in units of a linear ramp to zero over ``falloff_m`` (1: that ramp; independent of the
+    mesh's edge lengths; :func:`~kdfaces.ikd.gradient_ratio`; null for a sharp lift).
     """
     r = run.ikd_result
     seams = r.seam_ratios(run.shot.rig.faces)
     bounds = r.seam_bounds() or [None] * len(r.constraints)
+    gradients = r.gradient_ratios() or [None] * len(r.constraints)
     return {
         "converged": bool(r.converged),
         "reason": r.reason,
@@ -210,7 +213,7 @@ def ikd_summary(run: ShotRun) -> dict:
             {"label": c.label, "time_s": c.time_s, "kind": c.kind, "unit": c.unit,
              "error_before_m": float(r.errors_before[i]), "error_after_m": float(r.errors_after[i]),
              "seam_ratio": float(seams[i]), "falloff_m": float(c.falloff_m) if c.smooth else 0.0,
-             "seam_ratio_bound": bounds[i]}
+             "seam_ratio_bound": bounds[i], "gradient_ratio": gradients[i]}
             for i, c in enumerate(r.constraints)
         ],
         "independent_check_max_error_m": float(np.max(run.check_errors)),

@@ -47,7 +47,7 @@ def constraint_markers(constraint, x, x_prev=None, *, step_s: float = 0.04, max_
 
 def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.ndarray, np.ndarray | None]]], *,
                      step_s: float, reference: np.ndarray, title: str | None = None,
-                     seam_ratios=None, seam_bounds=None) -> Path:
+                     seam_ratios=None, seam_bounds=None, gradient_ratios=None) -> Path:
     """A PNG with one column per constraint and one row per label, target and reached markers on each face.
 
     Args:
@@ -60,7 +60,9 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
     Each panel is labelled with the constraint's error max‖target − q‖ in mm (mm/s for velocity constraints); with
     ``seam_ratios`` (one per constraint, see :func:`~kdfaces.ikd.seam_ratio`) each column title also gives the seam
     ratio of the constraint's correction, and with ``seam_bounds`` (one per constraint or None, see
-    :attr:`~kdfaces.ikd.SurfaceLift.seam_bound`) the floor this mesh and falloff put under it ("seam 0.29 ≥ 0.06").
+    :attr:`~kdfaces.ikd.SurfaceLift.seam_bound`) the floor this mesh and falloff put under it ("seam 0.29 ≥ 0.06");
+    with ``gradient_ratios`` (one per constraint or None, see :func:`~kdfaces.ikd.gradient_ratio`) the steepest
+    slope of the correction in units of a linear ramp over its falloff ("gradient 1.4"; 1: that ramp).
     """
     images, captions = {}, {}
     with FaceRenderer(faces, reference) as renderer:
@@ -74,5 +76,8 @@ def constraint_panel(path, faces, constraints, rows: dict[str, list[tuple[np.nda
         floors = [None] * len(titles) if seam_bounds is None else seam_bounds
         titles = [f"{t}, seam {float(s):.2f}" + ("" if b is None else f" ≥ {float(b):.2f}")
                   for t, s, b in zip(titles, seam_ratios, floors, strict=True)]
+    if gradient_ratios is not None:
+        titles = [t + ("" if g is None else f"\ngradient {float(g):.1f}")
+                  for t, g in zip(titles, gradient_ratios, strict=True)]
     fig = image_grid(images, titles, title=title, captions=captions, cell_inches=(2.3, 2.6))
     return save_figure(fig, path)

@@ -54,6 +54,9 @@ OTHER_CONCEPTS = {
     ("rings", "HatParams"): (24, "mesh divisions along the hat's cone"),
     ("fraction", "vertex_group"): (0.25, "a share of the mesh, not a settle fraction"),
     ("torque_limit_nm", "neck_chain_model"): (40.0, "the neck's motors, not the arm's"),
+    ("threads", "hat_offset_grid"): (1, "the Fig. 9 figure on one thread: its numbers repeat exactly (a hat batch "
+                                        "split over threads differs in round-off)"),
+    ("threads", "hat_tip_problem"): (1, "the Fig. 9 figure's hat, on one thread like the figure"),
 }
 #: names that are words of different things everywhere: labels, messages' "where", modes, figure sizes
 UNRELATED = {"label", "where", "name", "mode", "size", "local", "damping"}

@@ -31,7 +31,7 @@ def _smile(rig):
     """The README's ten-line smile."""
     smile = ShapeTrack(("mouthSmile_L", "mouthSmile_R"),
                        KeyframeCurve.create([0.0, 0.4, 1.0], [[0, 0], [1, 1], [0.2, 0.2]]))
-    return KinematicTrajectory(rig, FaceAnimation(tracks=(smile,), end=1.0, fps=25))
+    return KinematicTrajectory(rig, FaceAnimation(tracks=(smile,), end_s=1.0, fps=25))
 
 
 def test_a_window_of_zero_means_no_dynamics_the_kinematic_state(rig):
@@ -200,3 +200,34 @@ def test_versions_come_from_the_package_metadata_and_dir_shows_public_names():
         names = dir(mod)
         assert "__version__" in names and "annotations" not in names and "importlib" not in names
         assert set(names) == set(mod.__all__) | {"__version__"}
+
+
+def test_window_report_passes_the_meshing_arguments_through_for_a_user_mesh(tmp_path, monkeypatch):
+    """``envelope_fac`` and ``coarsen`` were hard-coded (1e-3, False) for a user's mesh, whatever was given."""
+    import trimesh
+
+    import kdfem.geometry.tetmesh as tetmesh
+    from kdfem.modal.window import load_object
+
+    seen = {}
+
+    def spy(v, f, **kwargs):
+        seen.update(kwargs)
+        raise KDInputError("stop here: the arguments are what this test checks")
+
+    monkeypatch.setattr(tetmesh, "tetrahedralize_cached", spy)
+    path = tmp_path / "box.obj"
+    trimesh.creation.box(extents=(0.02, 0.02, 0.04)).export(path)
+    with pytest.raises(KDInputError, match="stop here"):
+        load_object(path, envelope_fac=0.007, coarsen=False, edge_length_fac=0.2)
+    assert (seen["envelope_fac"], seen["coarsen"], seen["edge_length_fac"]) == (0.007, False, 0.2)
+
+
+def test_hat_surface_without_an_embedding_is_the_nodes_as_documented():
+    from kdfem.fem.system import HatSystem
+
+    doc = HatSystem.surface.__doc__
+    assert "without one the tet mesh is its own render mesh" in doc and "needs ``embedding``" not in doc
+    x = np.zeros((2, 5, 3))
+    fake = type("NoEmbedding", (), {"embedding": None})()
+    assert HatSystem.surface(fake, x) is x

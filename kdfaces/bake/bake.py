@@ -148,7 +148,7 @@ def _positive_int(value, what: str) -> int | None:
 
 
 #: How long a ``--scheduler`` address may take to answer Dask's handshake before the bake gives up [s].
-SCHEDULER_TIMEOUT_S = 4.0
+SCHEDULER_TIMEOUT_S = 3.0
 _SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
 
 
@@ -340,13 +340,14 @@ def bake_shot(shot, store, *, workers: int | None = None, scheduler: str | None 
     workers = _positive_int(workers, "workers")
     k = _positive_int(chunk_frames, "chunk_frames") or defaults.BAKE_CHUNK_FRAMES
     path = Path(shot).resolve()
-    table = read_shot_table(path)
-    text = path.read_bytes().decode("utf-8")
-    parsed = parse_shot(table, path, cache_dir=cache_dir, max_steps=max_steps)
-    k, workers = plan_bake(len(parsed.animation.frame_times), parsed.rig.num_vertices, k, workers,
-                           local=scheduler is None)
-    external = _connect(scheduler) if scheduler is not None else None  # a wrong address fails before the solve
+    # a wrong address fails first, within SCHEDULER_TIMEOUT_S, before the shot is even read
+    external = _connect(scheduler) if scheduler is not None else None
     try:
+        table = read_shot_table(path)
+        text = path.read_bytes().decode("utf-8")
+        parsed = parse_shot(table, path, cache_dir=cache_dir, max_steps=max_steps)
+        k, workers = plan_bake(len(parsed.animation.frame_times), parsed.rig.num_vertices, k, workers,
+                               local=scheduler is None)
         payload, info = _solve(parsed, path, text, table, window_s=window_s, max_memory_bytes=max_memory_bytes,
                                k=k, cache_dir=cache_dir, progress=progress, max_steps=max_steps,
                                fingerprints=(input_fingerprint(path, text, table), code_fingerprint()),

@@ -48,7 +48,7 @@ def main(argv=None) -> dict:
     d = args.duration
     smile = ShapeTrack(("mouthSmileLeft", "mouthSmileRight"), ease([0, 0.3 * d, 0.45 * d], [[0, 0], [0, 0], [1, 1]]))
     turn = JointDrive(ease([0, 0.2 * d, 0.35 * d], [[0, 0, 0], [0, 0, 0], [0.5, 0, 0]]))  # yaw, pitch, roll [rad]
-    anim = FaceAnimation(tracks=(smile,), skeleton=SkeletonAnimation((turn,)), end=d, fps=25, name="keys")
+    anim = FaceAnimation(tracks=(smile,), skeleton=SkeletonAnimation((turn,)), end_s=d, fps=25, name="keys")
     traj = KinematicTrajectory(rig, anim)
 
     # Soft tissue: 0.2 s to settle over bone, 0.5 s in cheeks and lips; underdamped (ζ = 0.3), so it overshoots.

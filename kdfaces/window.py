@@ -117,15 +117,23 @@ WindowEstimate.__init__ = renamed_kwargs(acceleration_max="acceleration_max_mps2
                                          initial_speed="initial_speed_mps")(WindowEstimate.__init__)
 
 
+def _span(motion) -> tuple[float, float]:
+    """(start, end) [s] of a trajectory (``start``, ``end``: the KD protocol) or an animation (``*_s``)."""
+    if hasattr(motion, "start_s"):
+        return float(motion.start_s), float(motion.end_s)
+    return float(motion.start), float(motion.end)
+
+
 def grid_size(trajectory, step_s: float) -> int:
     """J, the number of step-grid times start + j·h over the shot (what :func:`grid_times` would return, without
-    building it)."""
-    return int(np.floor((trajectory.end - trajectory.start) / step_s + 1e-9)) + 1
+    building it); ``trajectory`` may also be a :class:`~kdfaces.motion.FaceAnimation`."""
+    start, end = _span(trajectory)
+    return int(np.floor((end - start) / step_s + 1e-9)) + 1
 
 
 def grid_times(trajectory, step_s: float) -> np.ndarray:
     """The step grid start + j·h over the shot [s], shape (J,)."""
-    return trajectory.start + np.arange(grid_size(trajectory, step_s)) * step_s
+    return _span(trajectory)[0] + np.arange(grid_size(trajectory, step_s)) * step_s
 
 
 def check_scan(samples: int, vertices: int, max_steps: float | None, *, what: str = "automatic window") -> None:

@@ -44,7 +44,7 @@ def main(argv=None) -> dict:
     smile = ShapeTrack(("mouthSmileLeft", "mouthSmileRight"), ease([0, 0.3 * d, 0.45 * d, d], [[0, 0], [0, 0],
                                                                                              [1, 1], [1, 1]]))
     turn = JointDrive(ease([0, 0.2 * d, 0.35 * d, d], [[0, 0, 0], [0, 0, 0], [0.5, 0.0, 0.0], [0.5, 0.0, 0.0]]))
-    anim = FaceAnimation(tracks=(smile,), skeleton=SkeletonAnimation((turn,)), end=d, fps=25, name="walkthrough")
+    anim = FaceAnimation(tracks=(smile,), skeleton=SkeletonAnimation((turn,)), end_s=d, fps=25, name="walkthrough")
     traj = KinematicTrajectory(rig, anim)
 
     # 3. KD: loose cheeks and lips, stiff forehead; the window comes from the gains and the sharpest acceleration

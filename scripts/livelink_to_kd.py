@@ -35,7 +35,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
 
     rig = load_default_rig()
-    anim = livelinkface_animation(args.csv, start=args.start, end=args.end, fps=args.fps)
+    anim = livelinkface_animation(args.csv, start_s=args.start, end_s=args.end, fps=args.fps)
     traj = KinematicTrajectory(rig, anim)
     model = FaceModel.from_rig(rig, settle_time_s=soft_tissue_settle_map(rig, stiff_s=0.1, loose_s=0.3),
                                damping_ratio=0.4, shape_matching_alpha=0.2)

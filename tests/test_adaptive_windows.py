@@ -51,7 +51,7 @@ def patch():
 
     anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen",), ease([0, 0.2, 0.4, 0.9, 1.1], [0, 0, 1, 1, 0])),
                                  ShapeTrack(("mouthSmileLeft",), ease([0, 0.5, 0.7, 1.6], [0, 0, 1, 0]))),
-                         start=0.0, end=2.4, fps=25.0, name="patch")
+                         start_s=0.0, end_s=2.4, fps=25.0, name="patch")
     return rig, KinematicTrajectory(rig, anim)
 
 

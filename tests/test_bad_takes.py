@@ -286,7 +286,7 @@ def test_window_scans_are_bounded(default_rig):
     from kdfaces.window import adaptive_windows, automatic_window
 
     track = ShapeTrack(("jawOpen",), KeyframeCurve.create([0.0, 1.0], [[0.0], [1.0]]))
-    traj = KinematicTrajectory(default_rig, FaceAnimation(tracks=(track,), end=36000.0, fps=25))
+    traj = KinematicTrajectory(default_rig, FaceAnimation(tracks=(track,), end_s=36000.0, fps=25))
     model = dynamics_model(DYNAMICS_DEFAULTS, default_rig)
     t0 = time.perf_counter()
     with pytest.raises(KDInputError, match="scanning x_K at 900,001 step-grid times"):

@@ -73,10 +73,10 @@ def test_written_file_is_standard(tmp_path, default_rig):
 
 def test_weights_animation_round_trip(tmp_path, default_rig):
     curve = KeyframeCurve.create([0.0, 0.3, 1.0], [[0.0, 0.2], [1.0, 0.5], [0.1, 0.9]])
-    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen", "browInnerUp"), curve),), end=1.0, fps=30.0, name="talk")
+    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen", "browInnerUp"), curve),), end_s=1.0, fps=30.0, name="talk")
     path = save_gltf(default_rig, tmp_path / "talk.glb", animation=anim)
     back = load_gltf_animation(path)
-    assert back.name == "talk" and back.fps == pytest.approx(30.0) and (back.start, back.end) == (0.0, 1.0)
+    assert back.name == "talk" and back.fps == pytest.approx(30.0) and (back.start_s, back.end_s) == (0.0, 1.0)
     (track,) = back.tracks
     assert track.names == default_rig.shape_names
     idx = default_rig.shape_indices(["jawOpen", "browInnerUp"])

@@ -43,7 +43,7 @@ def small():
 
     anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen",), ease([0, 0.2, 0.4, 0.9, 1.1], [0, 0, 1, 1, 0])),
                                  ShapeTrack(("mouthSmileLeft",), ease([0, 0.5, 0.7, 1.6], [0, 0, 1, 0]))),
-                         start=0.0, end=2.0, fps=25.0, name="patch")
+                         start_s=0.0, end_s=2.0, fps=25.0, name="patch")
     traj = KinematicTrajectory(rig, anim)
     model = FaceModel.from_rig(rig, settle_time_s=0.3, damping_ratio=0.3, shape_matching_alpha=0.3, rings=1,
                                cluster_centers="all")
@@ -160,7 +160,8 @@ def test_an_interrupted_round_is_finished_by_the_workers_before_the_interrupt_le
 def demo_short(default_rig):
     """The demo's first 2.4 s (head turn, jaw open, blink) with the demo's dynamics."""
     anim = demo_animation()
-    short = FaceAnimation(tracks=anim.tracks, skeleton=anim.skeleton, start=0.0, end=2.4, fps=anim.fps, name="short")
+    short = FaceAnimation(tracks=anim.tracks, skeleton=anim.skeleton, start_s=0.0, end_s=2.4, fps=anim.fps,
+                          name="short")
     traj = KinematicTrajectory(default_rig, short)
     model = demo_face_model(default_rig)
     return traj, model

@@ -32,7 +32,7 @@ def test_real_take(llf_take_path, default_rig):
     assert (np.diff(take.times) > 0).all()
     jaw = take.weights[:, ARKIT_NAMES.index("jawOpen")]
     assert jaw.max() > 0.3  # a range-of-motion take opens the jaw
-    anim = livelinkface_animation(take, start=10.0, end=12.0)
+    anim = livelinkface_animation(take, start_s=10.0, end_s=12.0)
     x = KinematicTrajectory(default_rig, anim).positions(anim.frame_times)
     assert x.shape == (len(anim.frame_times), default_rig.num_vertices, 3) and np.isfinite(x).all()
 

@@ -42,7 +42,7 @@ def rig(default_rig):
 def shot(rig):
     """Kinematic trajectory of a jaw opening and a smile, frames 5..24 at 25 fps: (times (F,), positions (F,N,3))."""
     curve = KeyframeCurve.create([0.0, 0.4, 1.0], [[0.0, 0.0], [1.0, 0.3], [0.2, 0.8]])
-    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen", "mouthSmileLeft"), curve),), start=0.2, end=0.96, fps=FPS)
+    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen", "mouthSmileLeft"), curve),), start_s=0.2, end_s=0.96, fps=FPS)
     times = anim.frame_times
     return times, KinematicTrajectory(rig, anim).positions(times)
 

@@ -99,7 +99,7 @@ def test_scrubbing_a_long_stretch_in_random_order_never_raises(production_folder
     rig = load_rig(production_folder, units="cm")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnmappedChannelsWarning)
-        traj = KinematicTrajectory(rig, livelinkface_animation(LLF_TAKE, start=60.0, end=70.0),
+        traj = KinematicTrajectory(rig, livelinkface_animation(LLF_TAKE, start_s=60.0, end_s=70.0),
                                    cache_bytes=16 << 20)  # a small cache: the eviction case
     system = FaceSystem(FaceModel.from_rig(rig, settle_time_s=0.3))
     frames = np.random.default_rng(7).choice(traj.frame_times, size=12, replace=False)

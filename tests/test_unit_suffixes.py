@@ -20,10 +20,6 @@ SUFFIXES = ("_kg_m3", "_kg_m2", "_mps2", "_radps", "_mps", "_deg", "_pa", "_fac"
             "_s", "_m")
 #: (parameter, place) left as they are, with the reason
 LEFT = {
-    ("start", "FaceAnimation"): "being renamed with the motion rework (another change in progress)",
-    ("end", "FaceAnimation"): "being renamed with the motion rework (another change in progress)",
-    ("start", "livelinkface_animation"): "being renamed with the Live Link Face rework (in progress)",
-    ("end", "livelinkface_animation"): "being renamed with the Live Link Face rework (in progress)",
     ("window", "ModalAnalysis"): "a ModalWindow (its window_s is the seconds), not a length of time",
 }
 

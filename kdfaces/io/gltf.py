@@ -360,8 +360,8 @@ def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animat
                            f"CUBICSPLINE (a STEP change has no finite velocity for KD)")
     rate = infer_fps(times, fps=fps, where=where)
     start, end = float(times[0]), float(times[-1])
-    return FaceAnimation(tracks=(ShapeTrack(tuple(canonical_name(n) for n in names), curve),), start=start,
-                         end=end if end > start else start + 1.0 / rate, fps=rate, name=anim.name or f"animation{ai}")
+    return FaceAnimation(tracks=(ShapeTrack(tuple(canonical_name(n) for n in names), curve),), start_s=start,
+                         end_s=end if end > start else start + 1.0 / rate, fps=rate, name=anim.name or f"animation{ai}")
 
 
 def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | None = None, fps: float | None = None,

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..deprecation import renamed_kwargs
 from ..errors import KDInputError
 from ..motion.curves import KeyframeCurve
 from ..motion.joints import JointDrive, SkeletonAnimation
@@ -223,20 +224,21 @@ def check_stretch(take: LiveLinkTake, start: float, end: float, *, names=("start
         raise KDInputError(f"{names[1]}: {end:g} s is not after {names[0]} ({start:g} s); {where}")
 
 
+@renamed_kwargs(start="start_s", end="end_s")
 def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolation: str = "catmull-rom",
-                           start: float = 0.0, end: float | None = None) -> FaceAnimation:
+                           start_s: float = 0.0, end_s: float | None = None) -> FaceAnimation:
     """A :class:`FaceAnimation` from a take: one 52-channel weight track, and a head drive if angles are non-zero.
 
-    ``start``/``end`` [s] crop the take (relative to its first sample; 0 ≤ start < end ≤ the take's length, else a
+    ``start_s``/``end_s`` [s] crop the take (relative to its first sample; 0 ≤ start < end ≤ the take's length, else a
     :class:`KDInputError` naming the one that is outside); ``fps`` defaults to the capture rate, so the default
     simulation step puts every captured frame on the step grid. Channels a rig lacks are skipped with a warning
     (``strict_channels=False``; see :class:`~kdfaces.motion.KinematicTrajectory`).
     """
     take = take_or_path if isinstance(take_or_path, LiveLinkTake) else read_livelinkface(take_or_path)
     t = take.times
-    end = float(t[-1]) if end is None else float(end)
-    start = float(start)
-    check_stretch(take, start, end)
+    end = float(t[-1]) if end_s is None else float(end_s)
+    start = float(start_s)
+    check_stretch(take, start, end, names=("start_s", "end_s"))
     sel = (t >= start - 1.0 / take.rate_hz) & (t <= end + 1.0 / take.rate_hz)
     track = ShapeTrack(take.names, KeyframeCurve.create(t[sel], take.weights[sel], interpolation=interpolation,
                                                         where=f"{take.path} weights"))
@@ -244,6 +246,6 @@ def livelinkface_animation(take_or_path, *, fps: float | None = None, interpolat
     if take.head is not None and np.abs(take.head).max() > 0:
         drives = (JointDrive(KeyframeCurve.create(t[sel], take.head[sel], interpolation=interpolation,
                                                   where=f"{take.path} head angles")),)
-    return FaceAnimation(tracks=(track,), skeleton=SkeletonAnimation(drives), start=start, end=end,
+    return FaceAnimation(tracks=(track,), skeleton=SkeletonAnimation(drives), start_s=start, end_s=end,
                          fps=fps or take.rate_hz, name=Path(take.path).stem, strict_channels=False)
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..deprecation import renamed_kwargs, warn_renamed
 from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.names import alias_key, canonical_name, resolve_channels
@@ -48,7 +49,7 @@ class ShapeTrack:
 
 @dataclass(frozen=True)
 class FaceAnimation:
-    """Blend-shape weight tracks and head rotation drives over ``[start, end]`` seconds, sampled at ``fps``.
+    """Blend-shape weight tracks and head rotation drives over ``[start_s, end_s]`` seconds, sampled at ``fps``.
 
     ``strict_channels``: a channel that names no shape of the rig is an error (keyed animations, the default), or
     is skipped with one warning (captures, whose 52 ARKit channels a production rig rarely all has).
@@ -56,22 +57,35 @@ class FaceAnimation:
 
     tracks: tuple[ShapeTrack, ...] = ()
     skeleton: SkeletonAnimation = field(default_factory=SkeletonAnimation)
-    start: float = 0.0
-    end: float = 1.0
+    start_s: float = 0.0
+    end_s: float = 1.0
     fps: float = 25.0
     name: str = "animation"
     strict_channels: bool = True
 
     def __post_init__(self):
-        if not (np.isfinite(self.end) and np.isfinite(self.start) and self.end > self.start):
-            raise KDInputError(f"animation {self.name!r}: expected end > start, got [{self.start}, {self.end}]")
+        if not (np.isfinite(self.end_s) and np.isfinite(self.start_s) and self.end_s > self.start_s):
+            raise KDInputError(f"animation {self.name!r}: expected end_s > start_s, got [{self.start_s}, "
+                               f"{self.end_s}]")
         if not (self.fps > 0):
             raise KDInputError(f"animation {self.name!r}: fps must be positive, got {self.fps}")
 
     @property
+    def start(self) -> float:
+        """Deprecated name of :attr:`start_s`."""
+        warn_renamed("FaceAnimation", "start", "start_s")
+        return self.start_s
+
+    @property
+    def end(self) -> float:
+        """Deprecated name of :attr:`end_s`."""
+        warn_renamed("FaceAnimation", "end", "end_s")
+        return self.end_s
+
+    @property
     def duration(self) -> float:
-        """end − start [s]."""
-        return self.end - self.start
+        """end_s − start_s [s]."""
+        return self.end_s - self.start_s
 
     @property
     def num_frames(self) -> int:
@@ -81,7 +95,7 @@ class FaceAnimation:
     @property
     def frame_times(self) -> np.ndarray:
         """Times [s] of every frame in the shot, shape (F,)."""
-        return self.start + np.arange(self.num_frames) / self.fps
+        return self.start_s + np.arange(self.num_frames) / self.fps
 
     def moves(self) -> bool:
         """Whether anything in the animation changes over time: a shape-weight channel, a joint drive or the root
@@ -90,6 +104,11 @@ class FaceAnimation:
         if self.skeleton.root is not None:
             curves.append(self.skeleton.root)
         return any(not c.constant_channels().all() for c in curves)
+
+
+
+# the old keyword names start/end still work for one release (a warning names the new ones)
+FaceAnimation.__init__ = renamed_kwargs(start="start_s", end="end_s")(FaceAnimation.__init__)
 
 
 class UnmappedChannelsWarning(UserWarning):
@@ -205,7 +224,7 @@ class KinematicTrajectory:
             raise KDInputError(f"rig {self.rig.name!r} has no skeleton, so its trajectory has no joint angles")
         if self._joints is None:
             a = self.animation
-            self._joints = JointTrajectory(self.rig.skeleton, a.skeleton, start_s=a.start, end_s=a.end, fps=a.fps)
+            self._joints = JointTrajectory(self.rig.skeleton, a.skeleton, start_s=a.start_s, end_s=a.end_s, fps=a.fps)
         return self._joints
 
     @property
@@ -216,12 +235,12 @@ class KinematicTrajectory:
     @property
     def start(self) -> float:
         """Shot start [s]."""
-        return self.animation.start
+        return self.animation.start_s
 
     @property
     def end(self) -> float:
         """Shot end [s]."""
-        return self.animation.end
+        return self.animation.end_s
 
     @property
     def fps(self) -> float:

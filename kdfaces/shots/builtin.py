@@ -47,5 +47,5 @@ def demo_animation() -> FaceAnimation:
         [[0, 0, 0], [0, 0, 0], [0.6, 0, 0.05], [0.6, 0, 0.05], [0, 0, 0], [0, 0, 0], [0, 0.35, 0],
          [0, -0.1, 0], [0, 0, 0], [0, 0, 0]],
     )
-    return FaceAnimation(tracks=tracks, skeleton=SkeletonAnimation((JointDrive(head),)), start=0.0,
-                         end=DEMO_DURATION_S, fps=DEMO_FPS, name="demo")
+    return FaceAnimation(tracks=tracks, skeleton=SkeletonAnimation((JointDrive(head),)), start_s=0.0,
+                         end_s=DEMO_DURATION_S, fps=DEMO_FPS, name="demo")

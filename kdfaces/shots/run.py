@@ -225,7 +225,7 @@ def strip_times(run: ShotRun, count: int = 6) -> np.ndarray:
     """Times [s] for filmstrips: every constraint time, filled up with evenly spaced times, at most ``count``."""
     anim = run.shot.animation
     cts = sorted({c.time_s for c in run.ikd_result.constraints}) if run.ikd_result else []
-    fill = np.linspace(anim.start, anim.end, max(count, 2) + 2)[1:-1]
+    fill = np.linspace(anim.start_s, anim.end_s, max(count, 2) + 2)[1:-1]
     t = list(cts)
     for f in fill:
         if len(t) >= count:

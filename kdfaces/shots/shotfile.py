@@ -185,8 +185,8 @@ class Shot:
         where = f"{self.path}: constraints[{i}]"
         t = float(c["time_s"])
         a = self.animation
-        if not (a.start <= t <= a.end):
-            raise KDInputError(f"{where}.time_s: {t} s is outside the shot [{a.start}, {a.end}] s")
+        if not (a.start_s <= t <= a.end_s):
+            raise KDInputError(f"{where}.time_s: {t} s is outside the shot [{a.start_s}, {a.end_s}] s")
         kind = c["kind"]
         basis = make_basis(c["curve"], t, width_s=c["width_s"], ease_out_s=c["ease_out_s"])
         label = c["label"] if c["label"] is not None else f"{kind}@{t:g}s"
@@ -398,11 +398,11 @@ def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
 
     if a.source == "demo":
         anim = demo_animation()
-        start = anim.start if a.start_s is None else a.start_s
-        end = anim.end if a.end_s is None else a.end_s
-        if not anim.start <= start < end <= anim.end:
-            raise KDInputError(f"{where}: start_s, end_s: the demo animation runs [{anim.start:g}, {anim.end:g}] s; "
-                               f"got [{start:g}, {end:g}]")
+        start = anim.start_s if a.start_s is None else a.start_s
+        end = anim.end_s if a.end_s is None else a.end_s
+        if not anim.start_s <= start < end <= anim.end_s:
+            raise KDInputError(f"{where}: start_s, end_s: the demo animation runs [{anim.start_s:g}, "
+                               f"{anim.end_s:g}] s; got [{start:g}, {end:g}]")
         return FaceAnimation(anim.tracks, anim.skeleton, start, end, a.fps or anim.fps, anim.name)
     if a.source == "keys":
         tracks = []
@@ -434,7 +434,7 @@ def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
     start = 0.0 if a.start_s is None else float(a.start_s)
     end = float(take.times[-1]) if a.end_s is None else float(a.end_s)
     check_stretch(take, start, end, names=(f"{where}.start_s", f"{where}.end_s"))
-    return livelinkface_animation(take, fps=a.fps, start=start, end=end)
+    return livelinkface_animation(take, fps=a.fps, start_s=start, end_s=end)
 
 
 def _curve(times, values, interpolation: str, where: str) -> KeyframeCurve:
@@ -520,8 +520,8 @@ def _still_message(shot: Shot, a, where: str) -> str:
         return (f"{where}: animation: nothing moves (every track holds one value and the head does not turn), so "
                 "KD would return the still pose; expected keys that change (animation.tracks values, "
                 "animation.head angles) or [[constraints]] for IKD to meet")
-    return (f"{where}: animation.source: nothing moves in {a.source} between {shot.animation.start:g} and "
-            f"{shot.animation.end:g} s (every row holds the same weights and head angles), so KD would return the "
+    return (f"{where}: animation.source: nothing moves in {a.source} between {shot.animation.start_s:g} and "
+            f"{shot.animation.end_s:g} s (every row holds the same weights and head angles), so KD would return the "
             "still pose; expected a take with motion, another stretch (animation.start_s, end_s), or [[constraints]]")
 
 

@@ -270,7 +270,7 @@ def _kd_sweep(rig, model, delta, *, stride: int, step_s: float) -> dict:
 
     traj = KinematicTrajectory(rig, demo_animation())
     system = HatSystem(model, threads=1)  # as before THREADS = 2: the report's sweep numbers stay as they were
-    start = traj.animation.start
+    start = traj.animation.start_s
     times = traj.animation.frame_times[::stride]
     times = start + np.round((times - start) / h) * h
     windows = sorted({round(f * delta / h) * h for f in (0.25, 0.5, 1.0, 1.5, 2.0)} - {0.0})

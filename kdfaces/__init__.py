@@ -95,24 +95,32 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    if name == "__version__":  # from the installed package's metadata (kdfaces and kdfem are one distribution)
-        from importlib.metadata import PackageNotFoundError, version
+def lazy_exports(package: str, exports: dict, names) -> tuple:
+    """(``__getattr__``, ``__dir__``) for a package whose public names are imported on first use (PEP 562):
+    ``exports`` maps a name to the submodule (relative to ``package``) that defines it; ``__version__`` comes from
+    the installed distribution's metadata (kdfaces and kdfem are one distribution); ``dir()`` shows ``names`` and
+    ``__version__`` only."""
+    import sys
 
-        try:
-            value = version("kdfaces")
-        except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
-            value = "0+unknown"
-        globals()["__version__"] = value
+    def __getattr__(name: str):
+        if name == "__version__":
+            from importlib.metadata import PackageNotFoundError, version
+
+            try:
+                value = version("kdfaces")
+            except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
+                value = "0+unknown"
+        elif name in exports:
+            value = getattr(importlib.import_module(f".{exports[name]}", package), name)
+        else:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        setattr(sys.modules[package], name, value)
         return value
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'kdfaces' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
+
+    def __dir__():
+        return sorted([*names, "__version__"])
+
+    return __getattr__, __dir__
 
 
-def __dir__():
-    """The public names only (``__all__`` and ``__version__``), not the module's own imports."""
-    return sorted([*__all__, "__version__"])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, __all__)

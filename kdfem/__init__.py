@@ -10,7 +10,7 @@ Its names are imported on first use (PEP 562), as in :mod:`kdfaces`, so ``import
 
 from __future__ import annotations
 
-import importlib
+from kdfaces import lazy_exports
 
 _EXPORTS = {
     "run_hat_demo": "demo",
@@ -29,24 +29,4 @@ __all__ = ["run_hat_demo", "FEMModel", "HatSystem", "Material", "default_hat_sys
            "tetrahedralize", "analyse_model", "window_report"]
 
 
-def __getattr__(name: str):
-    if name == "__version__":  # from the installed package's metadata (kdfaces and kdfem are one distribution)
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            value = version("kdfaces")
-        except PackageNotFoundError:  # pragma: no cover - a source tree that was never installed
-            value = "0+unknown"
-        globals()["__version__"] = value
-        return value
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'kdfem' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    """The public names only (``__all__`` and ``__version__``), not the module's own imports."""
-    return sorted([*__all__, "__version__"])
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, __all__)

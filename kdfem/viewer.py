@@ -20,7 +20,7 @@ from kdfaces import defaults
 from kdfaces.errors import KDInputError
 from kdfaces.kd import simulate_kd, window_steps
 from kdfaces.viz.figures import SKIN
-from kdfaces.viz.viewer import PlotterWindow, check_screenshot_path, check_window_size
+from kdfaces.viz.viewer import PlotterWindow, check_screenshot_path, check_view_arguments, check_window_size
 
 __all__ = ["HatViewer", "view_hat", "add_view_parser", "HAT_COLOR"]
 
@@ -235,20 +235,14 @@ def view_hat(*, rig="default", screenshot=None, frame: int = 0, reduced: bool = 
         summary = {"frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
                    "system": "reduced" if viewer.reduced else "full", "window_s": viewer.window_s,
                    "youngs_pa": viewer.youngs_pa, "kd_state_ms": viewer.last_ms}
-        if screenshot is not None:
-            summary["screenshot"] = str(viewer.screenshot(screenshot))
-        else:
-            viewer.show()
-    finally:
+    except BaseException:
         viewer.close()
-    return summary
+        raise
+    return viewer.finish(summary, screenshot)
 
 
 def _view_command(args) -> dict:
-    if args.screenshot is None and args.frame != 0:
-        raise KDInputError("--frame: only meaningful with --screenshot FILE")
-    if args.screenshot is not None:
-        check_screenshot_path(args.screenshot)
+    check_view_arguments(args)
     return view_hat(rig=args.rig, screenshot=args.screenshot, frame=args.frame, reduced=not args.full,
                     window_s=args.window, youngs_pa=None if args.youngs_kpa is None else 1e3 * args.youngs_kpa,
                     size=(args.width, args.height))

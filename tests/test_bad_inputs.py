@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import check_one_line, run_cli
 
 from kdfaces import KDInputError
 from kdfaces.cli import main as kdfaces_main
@@ -106,23 +107,7 @@ SHOT_CASES = [
 ]
 
 
-def _run(argv, capsys, fn=kdfaces_main):
-    t0 = time.perf_counter()
-    rc = fn(argv)
-    seconds = time.perf_counter() - t0
-    err = capsys.readouterr().err
-    return rc, err, seconds
-
-
-def _check(rc, err, seconds, out: Path, *, names: str, field: str):
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert rc == 2, err
-    assert len(lines) == 1, lines
-    assert "Traceback" not in err
-    assert names in lines[0], (names, lines[0])
-    assert field in lines[0], (field, lines[0])
-    assert not out.exists() and not list(out.parent.glob(f".{out.name}.*")), "an output folder was left"
-    assert seconds < 30
+_run, _check = run_cli, check_one_line
 
 
 @pytest.mark.parametrize("case, edit, field", SHOT_CASES, ids=[c[0] for c in SHOT_CASES])

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import check_one_line, run_cli
 
 from kdfaces.cli import main as kdfaces_main
 from kdfem.cli import main as kdfem_main
@@ -23,24 +24,7 @@ REFERENCE = Path(__file__).resolve().parent / "reference" / "shot.toml"
 GOOD = REFERENCE.read_text()
 
 
-def _run(argv, capsys, fn=kdfaces_main):
-    t0 = time.perf_counter()
-    rc = fn(argv)
-    seconds = time.perf_counter() - t0
-    err = capsys.readouterr().err
-    return rc, err, seconds
-
-
-def _check(rc, err, seconds, out: Path | None, *, names: str, field: str, limit_s: float = 30):
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert rc == 2, err
-    assert len(lines) == 1, lines
-    assert "Traceback" not in err
-    assert names in lines[0], (names, lines[0])
-    assert field in lines[0], (field, lines[0])
-    if out is not None:
-        assert not out.exists() and not list(out.parent.glob(f".{out.name}.*")), "an output folder was left"
-    assert seconds < limit_s
+_run, _check = run_cli, check_one_line
 
 
 # ---- rigs that cannot be right -----------------------------------------------------------------------------------

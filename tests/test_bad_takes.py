@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import check_one_line, run_cli
 
 from kdfaces.cli import main as kdfaces_main
 
@@ -20,22 +21,7 @@ REFERENCE = Path(__file__).resolve().parent / "reference" / "shot.toml"
 GOOD = REFERENCE.read_text()
 
 
-def _run(argv, capsys):
-    t0 = time.perf_counter()
-    rc = kdfaces_main(argv)
-    seconds = time.perf_counter() - t0
-    return rc, capsys.readouterr().err, seconds
-
-
-def _check(rc, err, seconds, out: Path, *, names: str, field: str, limit_s: float = 30):
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert rc == 2, err
-    assert len(lines) == 1, lines
-    assert "Traceback" not in err
-    assert names in lines[0], (names, lines[0])
-    assert field in lines[0], (field, lines[0])
-    assert not out.exists() and not list(out.parent.glob(f".{out.name}.*")), "an output folder was left"
-    assert seconds < limit_s, seconds
+_run, _check = run_cli, check_one_line
 
 
 def _codes(first_s: int, count: int, rate: int = 30) -> list[str]:

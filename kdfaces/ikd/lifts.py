@@ -40,7 +40,7 @@ smooth or not, has a smaller :func:`seam_ratio` on this mesh — so a seam ratio
 ``falloff_m`` or a finer mesh.
 
 A measure of smoothness that does not depend on the mesh is :func:`gradient_ratio`: the steepest slope of the
-correction's magnitude along any edge, max |‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖, in units of the slope of a linear ramp
+correction's magnitude along any edge, max ``|‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖``, in units of the slope of a linear ramp
 from the largest magnitude to zero over ``falloff_m``, max ‖f‖ / falloff_m. A linear ramp over the falloff gives 1
 (the harmonic lift on a strip, exactly); the biharmonic lift, flat at both ends, is steeper in between; the sharp
 lift, a jump over one edge of length ℓ, gives falloff_m / ℓ (10 for a 5 mm edge and a 5 cm falloff).
@@ -94,7 +94,7 @@ def seam_ratio(field, faces=None, *, edges=None) -> float:
 
 
 def gradient_ratio(field, vertices, falloff_m: float, faces=None, *, edges=None) -> float:
-    """max over mesh edges of |‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖ × ``falloff_m`` / max over vertices of ‖f_v‖, for a
+    """max over mesh edges of ``|‖f_a‖ − ‖f_b‖| / ‖x_a − x_b‖`` × ``falloff_m`` / max over vertices of ‖f_v‖, for a
     field ``field`` (N, 3) (or (N,) magnitudes) on rest positions ``vertices`` (N, 3) [m].
 
     1 for a correction whose magnitude falls linearly from its largest value to zero over ``falloff_m`` [m]; the

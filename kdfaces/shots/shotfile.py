@@ -252,8 +252,8 @@ class WorkEstimate:
         scan_samples: step-grid times the window scans sample x_K at (0: none).
         kd_steps, solve_steps, full_steps, scan_steps: vertex-steps of the KD of every frame, of the IKD solve (its
             sweeps and the independent check), of the full simulations adaptive windows are checked against, and of
-            the window scans (each sampled vertex counts :data:`~kdfaces.defaults.SCAN_COST`).
-        vertex_steps: their sum, the number :data:`~kdfaces.defaults.MAX_STEPS` bounds.
+            the window scans (each sampled vertex counts :data:`~kdfaces.defaults.SCAN_COST`); their sum is
+            :attr:`vertex_steps`, the number :data:`~kdfaces.defaults.MAX_STEPS` bounds.
         memory_bytes: the trajectories of every frame held at once (x_K, x_KD, x_IKD and one working copy; one more
             with adaptive windows) [bytes]; a chunked bake holds a chunk at a time instead.
     """
@@ -275,7 +275,8 @@ class WorkEstimate:
 
     @property
     def vertex_steps(self) -> float:
-        """kd_steps + solve_steps + full_steps + scan_steps [vertex-steps]."""
+        """kd_steps + solve_steps + full_steps + scan_steps [vertex-steps]: what
+        :data:`~kdfaces.defaults.MAX_STEPS` bounds."""
         return self.kd_steps + self.solve_steps + self.full_steps + self.scan_steps
 
     def check(self, max_steps: float | None = defaults.MAX_STEPS, *, max_memory_bytes: int | None = None) -> None:

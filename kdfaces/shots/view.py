@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from .. import defaults
 from ..errors import KDInputError
-from ..viz.viewer import MODES, ShotViewer, check_screenshot_path, check_window_size
+from ..viz.viewer import MODES, ShotViewer, check_screenshot_path, check_view_arguments, check_window_size
 
 __all__ = ["view_shot", "add_view_parser"]
 
@@ -38,20 +38,14 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         summary = {"shot": shot.name, "frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
                    "mode": viewer.mode, "window_s": viewer.window_at(), "adaptive": viewer.adaptive,
                    "kd_state_ms": viewer.last_ms}
-        if screenshot is not None:
-            summary["screenshot"] = str(viewer.screenshot(screenshot))
-        else:
-            viewer.show()
-    finally:
+    except BaseException:
         viewer.close()
-    return summary
+        raise
+    return viewer.finish(summary, screenshot)
 
 
 def _view_command(args) -> dict:
-    if args.screenshot is None and args.frame != 0:
-        raise KDInputError("--frame: only meaningful with --screenshot FILE")
-    if args.screenshot is not None:
-        check_screenshot_path(args.screenshot)
+    check_view_arguments(args)
     return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
                      size=(args.width, args.height), window_s=args.window, threads=args.threads)
 

@@ -30,7 +30,7 @@ from ..kd import simulate_kd, window_steps
 from .figures import SKIN
 from .markers import constraint_markers
 
-__all__ = ["MODES", "ShotViewer", "PlotterWindow", "with_width", "check_window_size",
+__all__ = ["MODES", "ShotViewer", "PlotterWindow", "with_width", "check_window_size", "check_view_arguments",
            "check_screenshot_path"]
 
 MODES = ("kinematic", "kd", "ikd")
@@ -83,6 +83,18 @@ class PlotterWindow:
         """Redraw the status text (``status()``)."""
         self._text.SetText(2, self.status())
         self.plotter.render()
+
+    def finish(self, summary: dict, screenshot=None) -> dict:
+        """The end of a ``view`` command: write ``screenshot`` (its path goes into ``summary``) or open the window
+        until it is closed; the viewer is closed either way. Returns ``summary``."""
+        try:
+            if screenshot is not None:
+                summary["screenshot"] = str(self.screenshot(screenshot))
+            else:
+                self.show()
+        finally:
+            self.close()
+        return summary
 
     def screenshot(self, path) -> Path:
         """Write the current view to ``path`` (PNG), atomically."""
@@ -473,6 +485,15 @@ def check_screenshot_path(path, *, where: str = "--screenshot") -> Path:
 
 #: Window or screenshot sides a viewer accepts [px] (VTK aborts the process on a size it cannot allocate).
 WINDOW_SIDE_PX = (16, 8192)
+
+
+def check_view_arguments(args) -> None:
+    """The checks a ``view`` verb makes before loading anything: ``--frame`` only with ``--screenshot``, and a
+    screenshot path that can take a PNG (:func:`check_screenshot_path`)."""
+    if args.screenshot is None and args.frame != 0:
+        raise KDInputError("--frame: only meaningful with --screenshot FILE")
+    if args.screenshot is not None:
+        check_screenshot_path(args.screenshot)
 
 
 def check_window_size(size, *, where: str = "--width, --height") -> tuple[int, int]:

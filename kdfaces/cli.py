@@ -253,7 +253,8 @@ def _demo(args) -> dict:
         print(f"kdfaces demo: --offset-grid is deprecated and ignored: {OFFSET_GRID_MOVED}", file=sys.stderr)
     rig = load_rig(args.rig, units=args.rig_units, cache_dir=user_cache_dir())
     return run_demo(args.out, rig=rig, threads=args.threads, exports=args.export,
-                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True)
+                    export_unit_m=rig.source_unit_m if args.export_unit == "rig" else 1.0, progress=True,
+                    max_steps=args.max_steps)
 
 
 def add_rig_units_option(parser) -> None:
@@ -326,6 +327,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--offset-grid", type=int, default=None, metavar="N",
                       help="deprecated and ignored: the Fig. 9 analog moved to `kdfem demo --offset-grid N`")
     add_export_option(demo)
+    from .shots.run import add_max_steps_option
+
+    add_max_steps_option(demo)
     demo.set_defaults(func=_demo)
     add_run_parser(sub)
     add_bake_parser(sub)

@@ -315,6 +315,7 @@ ARG_CASES = [
     ("kdfaces", ["demo", "--offset-grid", "-5"], "--offset-grid: expected a whole number ≥ 0, got -5"),
     ("kdfaces", ["bake", str(DEMO_SHOT), "--max-memory", "1k"], "--max-memory 1 KiB: one KD state needs"),
     ("kdfem", ["demo", "--threads", "0"], "threads: expected a whole number ≥ 1, got 0"),
+    ("kdfaces", ["demo", "--max-steps", "10"], "demo.toml: 151 frames x at least 1 step per KD state"),
     ("kdfem", ["window", "--modes", "0"], "modes: expected a whole number ≥ 1, got 0"),
     ("kdfem", ["window", "--sweep-stride", "0"], "sweep_stride: expected a whole number ≥ 1, got 0"),
     ("kdfem", ["window", "--scale", "-1"], "scale: expected a positive factor"),
@@ -331,6 +332,8 @@ def test_bad_arguments(tmp_path, capsys, prog, argv, field):
 
 ARG_CASES_VIEW = [
     ("kdfaces", ["view", str(DEMO_SHOT), "--screenshot", "{tmp}/s.png", "--width", "0"], "--width, --height"),
+    ("kdfaces", ["view", str(DEMO_SHOT), "--screenshot", "{tmp}/s.png", "--max-steps", "10"],
+     "demo.toml: 151 frames x at least 1 step per KD state"),
     ("kdfaces", ["view", str(DEMO_SHOT), "--screenshot", "{tmp}/s.png", "--width", "100000"], "--width, --height"),
     ("kdfaces", ["render", str(DEMO_SHOT), "--frames", "-3", "--no-movie", "--out", "{tmp}/out"],
      "frames: expected a whole number ≥ 1, got -3"),

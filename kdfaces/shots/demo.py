@@ -45,7 +45,8 @@ def _largest_deviation_frame(run) -> int:
 
 
 def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(), movie: bool = True,
-             export_unit_m: float = 1.0, progress: bool = False, offset_grid=None, offset_grid_size=None) -> dict:
+             export_unit_m: float = 1.0, progress: bool = False, offset_grid=None, offset_grid_size=None,
+             max_steps: float | None = defaults.MAX_STEPS) -> dict:
     """Run the demo shot and write everything a person looks at; returns summary.json's content.
 
     KD of every frame at the automatic window, the full simulation and the KD-vs-full sweep (Fig. 10 analog), the
@@ -53,7 +54,8 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
     deviation heat map at the frame of largest KD deviation (``heatmap.png``) and the movie of the whole shot
     (``movie.mp4``, kinematic | KD | IKD, GIF where MP4 cannot be written).
 
-    ``offset_grid`` and ``offset_grid_size`` are deprecated and ignored (a :class:`DeprecationWarning`): the Fig. 9
+    ``max_steps`` bounds the shot's work estimate as in :func:`~kdfaces.shots.run.run_shot`. ``offset_grid`` and
+    ``offset_grid_size`` are deprecated and ignored (a :class:`DeprecationWarning`): the Fig. 9
     analog moved to ``kdfem demo --offset-grid N`` (:data:`OFFSET_GRID_MOVED`).
     """
     from ..errors import check_count
@@ -73,7 +75,7 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
 
     out = Path(out)
     shot = load_shot(DEMO_SHOT, rig=rig)
-    run = run_shot(shot, threads=threads, progress=progress)
+    run = run_shot(shot, threads=threads, progress=progress, max_steps=max_steps)
     traj, system, h = shot.trajectory, run.system, run.step_s
     full = simulate_full(system, traj, run.times, step_s=h)
     windows = sorted({*DEMO_SWEEP_S, run.window_s})

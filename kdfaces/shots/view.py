@@ -12,18 +12,20 @@ __all__ = ["view_shot", "add_view_parser"]
 
 
 def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
-              threads: int = defaults.THREADS) -> dict:
+              threads: int = defaults.THREADS, max_steps: float | None = defaults.MAX_STEPS) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
-    ``screenshot`` must be a ``.png`` path (:func:`check_screenshot_path`, checked before the shot is read).
+    ``max_steps``: the shot's work estimate is checked against it as it is loaded (see
+    :func:`~kdfaces.shots.shotfile.estimate_work`). ``screenshot`` must be a ``.png`` path
+    (:func:`check_screenshot_path`, checked before the shot is read).
     """
     from .shotfile import load_shot
 
     size = check_window_size(size)
     if screenshot is not None:
         check_screenshot_path(screenshot)
-    shot = load_shot(path)
+    shot = load_shot(path, max_steps=max_steps)
     n = len(shot.animation.frame_times)
     if not 0 <= int(frame) < n:
         raise KDInputError(f"--frame: {frame} is outside the shot's frames 0..{n - 1}")
@@ -47,7 +49,8 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
 def _view_command(args) -> dict:
     check_view_arguments(args)
     return view_shot(args.shot, screenshot=args.screenshot, frame=args.frame, mode=args.mode,
-                     size=(args.width, args.height), window_s=args.window, threads=args.threads)
+                     size=(args.width, args.height), window_s=args.window, threads=args.threads,
+                     max_steps=args.max_steps)
 
 
 def add_view_parser(subparsers) -> None:
@@ -64,4 +67,7 @@ def add_view_parser(subparsers) -> None:
     ap.add_argument("--threads", type=int, default=defaults.THREADS,
                     help=f"CPU threads per KD state (default {defaults.THREADS})")
     ap.add_argument("--json", action="store_true", help="print the summary to stdout")
+    from .run import add_max_steps_option
+
+    add_max_steps_option(ap)
     ap.set_defaults(func=_view_command)

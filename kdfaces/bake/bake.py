@@ -148,7 +148,7 @@ def _positive_int(value, what: str) -> int | None:
 
 
 #: How long a ``--scheduler`` address may take to answer Dask's handshake before the bake gives up [s].
-SCHEDULER_TIMEOUT_S = 3.0
+SCHEDULER_TIMEOUT_S = 2.0
 _SCHEMES = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
 
 

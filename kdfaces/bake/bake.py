@@ -203,6 +203,9 @@ def _connect(scheduler: str):
         raise
     except TimeoutError:
         why = f"no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s"
+    except OSError as e:  # refused or unreachable: Dask retries until its own timeout, then says "Timed out"
+        why = (f"no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s" if "timed out" in str(e).lower()
+               else str(e).splitlines()[0] or type(e).__name__)
     except BaseException as e:  # OSError (refused, unknown host), or a peer that sent junk (MemoryError, ValueError)
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
     if why is not None:

@@ -365,3 +365,15 @@ def test_an_error_inside_a_viewer_callback_is_raised_not_printed(capsys):
     with pytest.raises(KDInputError, match="broken on purpose"):
         Broken(off_screen=True)
     assert "Encountered issue in callback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("prog, verb", [("kdfaces", "run"), ("kdfaces", "bake"), ("kdfaces", "render"),
+                                        ("kdfem", "door")])
+@pytest.mark.parametrize("text", ["", "# only a comment\n\n"], ids=["empty", "comment-only"])
+def test_an_empty_shot_file_is_an_error_not_the_defaults(tmp_path, capsys, prog, verb, text):
+    """An empty shot file parses (TOML allows it) but means nothing; it used to run the built-in demo (or door)."""
+    shot = tmp_path / "mine.toml"
+    shot.write_text(text)
+    out = tmp_path / "out"
+    fn = kdfaces_main if prog == "kdfaces" else kdfem_main
+    _check(*_run([verb, str(shot), "--out", str(out)], capsys, fn=fn), out, names="mine.toml", field="is empty")

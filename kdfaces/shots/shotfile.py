@@ -542,9 +542,13 @@ def read_shot_table(path) -> dict:
     if "\x00" in text:
         raise KDInputError(f"{p}: a binary file, not a TOML shot file")
     try:
-        return tomllib.loads(text)
+        table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise KDInputError(f"{p}: not valid TOML ({e})") from None
+    if not table:  # an empty file would silently run the built-in defaults (the demo animation)
+        raise KDInputError(f"{p}: the shot file is empty; expected at least an [animation] table (keys, a capture "
+                           "or source = \"demo\")")
+    return table
 
 
 def load_shot(path, *, rig=None, rig_units: str | None = None, cache_dir=None,

@@ -176,6 +176,9 @@ def load_door_shot(path=None) -> tuple[DoorShot, Path]:
         raise KDInputError(f"{p}: door shot file not found") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise KDInputError(f"{p}: not a readable TOML file ({e})") from None
+    if not data:  # an empty file would silently run the built-in scene
+        raise KDInputError(f"{p}: the door shot file is empty; expected the tables of a door scene (the built-in one "
+                           f"is {DOOR_SHOT})")
     try:
         shot = DoorShot.model_validate(data)
     except ValidationError as e:

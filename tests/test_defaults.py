@@ -71,9 +71,10 @@ def public_modules():
                 yield importlib.import_module(info.name)
 
 
-def signatures():
-    """(place, parameter name, default) of every literal default in a public signature."""
-    seen, out = set(), []
+def public_callables():
+    """(place, parameters) of every public callable of both packages: each name in a public module's ``__all__``
+    (once) and the public methods of exported classes, by qualified name."""
+    seen = set()
     for module in public_modules():
         for name in getattr(module, "__all__", ()):
             obj = getattr(module, name)
@@ -86,13 +87,19 @@ def signatures():
                         if not a.startswith("_") and inspect.isfunction(getattr(m, "__func__", m))]
             for place, fn in fns:
                 try:
-                    params = inspect.signature(fn).parameters.values()
+                    yield place, inspect.signature(fn).parameters.values()
                 except (TypeError, ValueError):
                     continue
-                for p in params:
-                    if p.default is not inspect.Parameter.empty and p.default is not None and \
-                            isinstance(p.default, bool | int | float | str | tuple):
-                        out.append((place, p.name, p.default))
+
+
+def signatures():
+    """(place, parameter name, default) of every literal default in a public signature."""
+    out = []
+    for place, params in public_callables():
+        for p in params:
+            if p.default is not inspect.Parameter.empty and p.default is not None and \
+                    isinstance(p.default, bool | int | float | str | tuple):
+                out.append((place, p.name, p.default))
     return out
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from test_defaults import public_modules  # noqa: F401 - the same walk
+from test_defaults import public_callables  # the same walk
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,27 +26,7 @@ LEFT = {
 
 def parameters():
     """(place, parameter name) of every public signature of both packages, fields of exported classes included."""
-    import importlib
-    import inspect
-
-    seen, out = set(), set()
-    for module in public_modules():
-        for name in getattr(module, "__all__", ()):
-            obj = getattr(module, name)
-            if id(obj) in seen or (getattr(obj, "__module__", "") or "").split(".")[0] not in ("kdfaces", "kdfem"):
-                continue
-            seen.add(id(obj))
-            fns = [(obj.__qualname__, obj)] if callable(obj) else []
-            if inspect.isclass(obj):
-                fns += [(f"{obj.__qualname__}.{a}", getattr(m, "__func__", m)) for a, m in vars(obj).items()
-                        if not a.startswith("_") and inspect.isfunction(getattr(m, "__func__", m))]
-            for place, fn in fns:
-                try:
-                    out |= {(place, p) for p in inspect.signature(fn).parameters if p not in ("self", "cls")}
-                except (TypeError, ValueError):
-                    continue
-    del importlib
-    return out
+    return {(place, p.name) for place, params in public_callables() for p in params if p.name not in ("self", "cls")}
 
 
 def test_quantities_carry_their_unit_in_both_packages():

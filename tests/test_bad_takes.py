@@ -282,3 +282,30 @@ def test_window_scans_are_bounded(default_rig):
     with pytest.raises(KDInputError, match="more than max_steps 1e\\+03"):
         automatic_window(model, traj, times=np.arange(10.0), max_steps=1e3)
     assert time.perf_counter() - t0 < 5
+
+
+def test_a_whole_real_take_runs_to_its_last_sample(tmp_path, llf_take_path, default_rig):
+    """A capture's last sample need not fall on the frame grid (the real take ends 1.4 ms before a frame): the
+    shot's frames all lie inside it. Rounding the frame count up put a frame past the end, and a whole-take
+    `kdfaces run` failed with "outside the shot"."""
+    from kdfaces.io.livelinkface import livelinkface_animation
+
+    head = tmp_path / "head.csv"
+    head.write_text("".join(llf_take_path.read_text().splitlines(keepends=True)[:300]))
+    anim = livelinkface_animation(head)
+    t = anim.frame_times
+    assert t[-1] <= anim.end_s + 1e-12 and anim.end_s - t[-1] < 1.0 / anim.fps
+    shot = tmp_path / "head.toml"
+    shot.write_text('name = "head"\n[animation]\nsource = "head.csv"\n[dynamics]\nwindow_s = 0.1\n')
+    assert kdfaces_main(["run", str(shot), "--out", str(tmp_path / "out")]) == 0
+
+
+def test_a_capture_saved_with_a_byte_order_mark_reads_like_one_without(tmp_path, llf_take_path):
+    from kdfaces.io.livelinkface import read_livelinkface
+
+    rows = "".join(llf_take_path.read_text().splitlines(keepends=True)[:40])
+    plain, bom = tmp_path / "plain.csv", tmp_path / "bom.csv"
+    plain.write_text(rows)
+    bom.write_bytes(b"\xef\xbb\xbf" + rows.replace("\n", "\r\n").encode())
+    a, b = read_livelinkface(plain), read_livelinkface(bom)
+    assert np.array_equal(a.times, b.times) and np.array_equal(a.weights, b.weights) and a.names == b.names

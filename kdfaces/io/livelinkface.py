@@ -144,10 +144,17 @@ def read_livelinkface(path) -> LiveLinkTake:
     p = Path(path)
     if not p.exists():
         raise KDInputError(f"{p}: file not found")
-    with open(p, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        rows = [r for r in reader if r]
+    if p.is_dir():
+        raise KDInputError(f"{p}: is a folder; expected a Live Link Face CSV file")
+    try:  # utf-8-sig: a CSV saved by a spreadsheet on Windows starts with a byte-order mark
+        with open(p, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            rows = [r for r in reader if r]
+    except UnicodeDecodeError as e:
+        raise KDInputError(f"{p}: not a UTF-8 text file (byte {e.start}); expected a Live Link Face CSV") from None
+    except (csv.Error, OSError) as e:
+        raise KDInputError(f"{p}: not a readable CSV ({e})") from None
     if not header or header[0].strip() != "Timecode" or len(header) < 3 or header[1].strip() != "BlendShapeCount":
         raise KDInputError(f"{p}: header: expected 'Timecode,BlendShapeCount,<blend shape names>...', got "
                            f"{','.join((header or [])[:3])!r}")

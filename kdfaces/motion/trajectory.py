@@ -89,8 +89,10 @@ class FaceAnimation:
 
     @property
     def num_frames(self) -> int:
-        """F, the number of frames in the shot (without building :attr:`frame_times`)."""
-        return int(round(self.duration * self.fps)) + 1
+        """F, the number of frames in the shot (without building :attr:`frame_times`): every frame lies in
+        [start_s, end_s] (a capture's last sample need not fall on the frame grid; rounding up put a frame past
+        the shot's end)."""
+        return int(np.floor(self.duration * self.fps + 1e-6)) + 1
 
     @property
     def frame_times(self) -> np.ndarray:

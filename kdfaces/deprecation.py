@@ -1,4 +1,4 @@
-"""Renamed keyword arguments keep working for one release, with a :class:`DeprecationWarning`."""
+"""Renamed keyword arguments and attributes keep working for one release, with a :class:`DeprecationWarning`."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import warnings
 
 from .errors import KDInputError
 
-__all__ = ["renamed_kwargs", "warn_renamed"]
+__all__ = ["renamed_kwargs", "renamed_attribute", "warn_renamed"]
 
 
 def warn_renamed(where: str, old: str, new: str, *, stacklevel: int = 3) -> None:
@@ -39,3 +39,25 @@ def renamed_kwargs(**old_to_new: str):
         return wrapper
 
     return decorate
+
+
+class renamed_attribute:
+    """A class attribute standing for the old name of attribute ``new``: reading it warns (naming the instance's
+    class) and returns ``new``'s value.
+
+    >>> class Material:
+    ...     youngs = renamed_attribute("youngs_pa")
+    """
+
+    def __init__(self, new: str):
+        self.new = new
+        self.__doc__ = f"Deprecated name of :attr:`{new}`."
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.old = name
+
+    def __get__(self, obj, objtype=None):
+        if obj is None:
+            return self
+        warn_renamed(type(obj).__name__, self.old, self.new)
+        return getattr(obj, self.new)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.special import lambertw
 
 from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, default_step
-from .deprecation import renamed_kwargs, warn_renamed
+from .deprecation import renamed_attribute, renamed_kwargs
 from .errors import KDInputError
 from .motion.trajectory import scan_trajectory
 
@@ -100,17 +100,8 @@ class WindowEstimate:
     initial_speed_mps: float
     regime: str
 
-    @property
-    def acceleration_max(self) -> float:
-        """Deprecated name of :attr:`acceleration_max_mps2`."""
-        warn_renamed("WindowEstimate", "acceleration_max", "acceleration_max_mps2")
-        return self.acceleration_max_mps2
-
-    @property
-    def initial_speed(self) -> float:
-        """Deprecated name of :attr:`initial_speed_mps`."""
-        warn_renamed("WindowEstimate", "initial_speed", "initial_speed_mps")
-        return self.initial_speed_mps
+    acceleration_max = renamed_attribute("acceleration_max_mps2")
+    initial_speed = renamed_attribute("initial_speed_mps")
 
 
 WindowEstimate.__init__ = renamed_kwargs(acceleration_max="acceleration_max_mps2",

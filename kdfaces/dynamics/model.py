@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import defaults
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError, check_finite
 from .clusters import Clusters, ring_clusters
 from .gains import gains_from_settle_time
@@ -125,23 +125,9 @@ class FaceModel:
         """N, the number of vertices."""
         return len(self.mass)
 
-    @property
-    def alpha(self) -> float:
-        """Deprecated name of :attr:`shape_matching_alpha`."""
-        warn_renamed("FaceModel", "alpha", "shape_matching_alpha")
-        return self.shape_matching_alpha
-
-    @property
-    def damping(self) -> str:
-        """Deprecated name of :attr:`damping_mode`."""
-        warn_renamed("FaceModel", "damping", "damping_mode")
-        return self.damping_mode
-
-    @property
-    def settle_time(self) -> np.ndarray:
-        """Deprecated name of :attr:`settle_time_s`."""
-        warn_renamed("FaceModel", "settle_time", "settle_time_s")
-        return self.settle_time_s
+    alpha = renamed_attribute("shape_matching_alpha")
+    damping = renamed_attribute("damping_mode")
+    settle_time = renamed_attribute("settle_time_s")
 
     @classmethod
     @renamed_kwargs(settle_time="settle_time_s", alpha="shape_matching_alpha", damping="damping_mode",
@@ -194,11 +180,7 @@ class FaceModel:
                    shape_matching_alpha=float(alpha), damping_mode=damping, diameter_m=diameter, rotation=rotation,
                    rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n))
 
-    @property
-    def diameter(self) -> float:
-        """Deprecated name of :attr:`diameter_m`."""
-        warn_renamed("FaceModel", "diameter", "diameter_m")
-        return self.diameter_m
+    diameter = renamed_attribute("diameter_m")
 
     @classmethod
     def from_rig(cls, rig, **kwargs) -> FaceModel:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import defaults
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError
 
 __all__ = ["Basis", "GaussianBasis", "PolyBell", "AsymmetricBell", "make_basis", "BASIS_KINDS"]
@@ -53,11 +53,7 @@ class Basis:
 
     center_s: float
 
-    @property
-    def center(self) -> float:
-        """Deprecated name of :attr:`center_s`."""
-        warn_renamed(type(self).__name__, "center", "center_s")
-        return self.center_s
+    center = renamed_attribute("center_s")
 
     def support(self) -> tuple[float, float]:
         """The time interval [s] outside which the bell is exactly zero."""
@@ -84,11 +80,7 @@ class GaussianBasis(Basis):
     def __post_init__(self):
         _check_width(self.width_s, "gaussian bell width_s")
 
-    @property
-    def sigma(self) -> float:
-        """Deprecated name of :attr:`width_s`."""
-        warn_renamed("GaussianBasis", "sigma", "width_s")
-        return self.width_s
+    sigma = renamed_attribute("width_s")
 
     def support(self):
         """[t_i − cutoff·σ, t_i + cutoff·σ] [s]."""

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import defaults
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError, check_finite
 from .bases import Basis
 from .corrections import POSITION, VELOCITY
@@ -80,11 +80,7 @@ class Constraint:
     normal: np.ndarray | None = None
     inequality: bool = False
 
-    @property
-    def time(self) -> float:
-        """Deprecated name of :attr:`time_s`."""
-        warn_renamed("Constraint", "time", "time_s")
-        return self.time_s
+    time = renamed_attribute("time_s")
 
     @property
     def name(self) -> str:

@@ -55,7 +55,7 @@ import numpy as np
 
 from .. import defaults
 from ..defaults import default_step
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError
 from ..kd import simulate_kd
 from .clearance import Clearance
@@ -178,11 +178,7 @@ class IKDResult:
         """Each constraint's error after the last sweep (C,) [m or m/s]."""
         return self.history[-1]
 
-    @property
-    def damping(self) -> float:
-        """Deprecated name of :attr:`step_scale`."""
-        warn_renamed("IKDResult", "damping", "step_scale")
-        return self.step_scale
+    damping = renamed_attribute("step_scale")
 
 
 def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError, check_finite
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.names import alias_key, canonical_name, resolve_channels
@@ -70,17 +70,8 @@ class FaceAnimation:
         if not (self.fps > 0):
             raise KDInputError(f"animation {self.name!r}: fps must be positive, got {self.fps}")
 
-    @property
-    def start(self) -> float:
-        """Deprecated name of :attr:`start_s`."""
-        warn_renamed("FaceAnimation", "start", "start_s")
-        return self.start_s
-
-    @property
-    def end(self) -> float:
-        """Deprecated name of :attr:`end_s`."""
-        warn_renamed("FaceAnimation", "end", "end_s")
-        return self.end_s
+    start = renamed_attribute("start_s")
+    end = renamed_attribute("end_s")
 
     @property
     def duration(self) -> float:

@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import defaults
-from ..deprecation import warn_renamed
+from ..deprecation import renamed_attribute, warn_renamed
 from ..errors import KDInputError
 from ..ikd.bases import make_basis
 from ..ikd.constraints import (
@@ -147,11 +147,7 @@ class Shot:
         s = self.dynamics["step_s"]
         return 1.0 / self.animation.fps if s == "frame" else float(s)
 
-    @property
-    def step(self) -> float:
-        """Deprecated name of :attr:`step_s`."""
-        warn_renamed("Shot", "step", "step_s")
-        return self.step_s
+    step = renamed_attribute("step_s")
 
     def settle_time(self):
         """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section (parts included)."""

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..defaults import default_step
-from ..deprecation import renamed_kwargs, warn_renamed
+from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 from ..kd import observe_kinematic, simulate_full, simulate_kd
@@ -46,11 +46,7 @@ class KDErrorReport:
     epsilon_m: float | None = None
     window_auto: float | None = None
 
-    @property
-    def epsilon(self) -> float | None:
-        """Deprecated name of :attr:`epsilon_m`."""
-        warn_renamed("KDErrorReport", "epsilon", "epsilon_m")
-        return self.epsilon_m
+    epsilon = renamed_attribute("epsilon_m")
 
 
     def to_json(self) -> dict:

@@ -44,7 +44,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from kdfaces import defaults
-from kdfaces.deprecation import renamed_kwargs, warn_renamed
+from kdfaces.deprecation import renamed_attribute, renamed_kwargs
 from kdfaces.errors import SimulationBlowUpError
 
 from . import kernels
@@ -228,17 +228,8 @@ class ImplicitEuler:
         self._workspaces: dict[tuple[int, int], _Workspace] = {}
         self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
 
-    @property
-    def h(self) -> float:
-        """Deprecated name of :attr:`step_s`."""
-        warn_renamed("ImplicitEuler", "h", "step_s")
-        return self.step_s
-
-    @property
-    def tol(self) -> float:
-        """Deprecated name of :attr:`tol_m`."""
-        warn_renamed("ImplicitEuler", "tol", "tol_m")
-        return self.tol_m
+    h = renamed_attribute("step_s")
+    tol = renamed_attribute("tol_m")
 
     def workspace(self, k: int, slot: int = 0) -> _Workspace:
         """The persistent :class:`_Workspace` for ``k`` members used by thread ``slot``."""

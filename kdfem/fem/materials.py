@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kdfaces import defaults
-from kdfaces.deprecation import renamed_kwargs, warn_renamed
+from kdfaces.deprecation import renamed_attribute, renamed_kwargs
 from kdfaces.errors import KDInputError
 
 __all__ = ["Material", "MODELS", "MaterialUnitsWarning", "PLAUSIBLE_YOUNGS_PA"]
@@ -71,23 +71,9 @@ class Material:
         if self.model not in MODELS:
             raise KDInputError(f"material model: expected one of {sorted(MODELS)}, got {self.model!r}")
 
-    @property
-    def youngs(self) -> float:
-        """Deprecated name of :attr:`youngs_pa`."""
-        warn_renamed("Material", "youngs", "youngs_pa")
-        return self.youngs_pa
-
-    @property
-    def poisson(self) -> float:
-        """Deprecated name of :attr:`poisson_ratio`."""
-        warn_renamed("Material", "poisson", "poisson_ratio")
-        return self.poisson_ratio
-
-    @property
-    def density(self) -> float:
-        """Deprecated name of :attr:`density_kg_m3`."""
-        warn_renamed("Material", "density", "density_kg_m3")
-        return self.density_kg_m3
+    youngs = renamed_attribute("youngs_pa")
+    poisson = renamed_attribute("poisson_ratio")
+    density = renamed_attribute("density_kg_m3")
 
     @property
     def lame(self) -> tuple[float, float]:

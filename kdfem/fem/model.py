@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import warp as wp
 
 from kdfaces import defaults
-from kdfaces.deprecation import renamed_kwargs, warn_renamed
+from kdfaces.deprecation import renamed_attribute, renamed_kwargs
 from kdfaces.errors import KDInputError
 
 from ..geometry.tetmesh import TetMesh
@@ -181,17 +181,8 @@ class FEMModel:
         f, e, _, detF = self.step_terms(x, v, np.ascontiguousarray(R), damping=damping)
         return f, e, detF.min(axis=1)
 
-    @property
-    def alpha(self) -> float:
-        """Deprecated name of :attr:`rayleigh_alpha`."""
-        warn_renamed("FEMModel", "alpha", "rayleigh_alpha")
-        return self.rayleigh_alpha
-
-    @property
-    def beta(self) -> float:
-        """Deprecated name of :attr:`rayleigh_beta`."""
-        warn_renamed("FEMModel", "beta", "rayleigh_beta")
-        return self.rayleigh_beta
+    alpha = renamed_attribute("rayleigh_alpha")
+    beta = renamed_attribute("rayleigh_beta")
 
 
 FEMModel.__init__ = renamed_kwargs(alpha="rayleigh_alpha", beta="rayleigh_beta")(FEMModel.__init__)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kdfaces import defaults
-from kdfaces.deprecation import renamed_kwargs, warn_renamed
+from kdfaces.deprecation import renamed_attribute, renamed_kwargs, warn_renamed
 from kdfaces.errors import check_count
 from kdfaces.kd import step_windows
 from kdfaces.motion.ik import point_jacobian
@@ -54,11 +54,7 @@ class HatSystem:
     threads: int = defaults.THREADS
     joint: str = "head"
 
-    @property
-    def tol(self) -> float:
-        """Deprecated name of :attr:`tol_m`."""
-        warn_renamed("HatSystem", "tol", "tol_m")
-        return self.tol_m
+    tol = renamed_attribute("tol_m")
 
     def __post_init__(self):
         self.threads = check_count(self.threads, "threads")

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kdfaces.deprecation import renamed_kwargs, warn_renamed
+from kdfaces.deprecation import renamed_attribute, renamed_kwargs
 from kdfaces.errors import KDInputError
 
 __all__ = ["HatParams", "hat_profile", "christmas_hat"]
@@ -57,41 +57,12 @@ class HatParams:
         if self.segments < 8 or self.rings < 4:
             raise KDInputError("hat segments/rings: expected at least 8 segments and 4 rings")
 
-    @property
-    def height(self):
-        """Deprecated name of :attr:`height_m`."""
-        warn_renamed("HatParams", "height", "height_m")
-        return self.height_m
-
-    @property
-    def radius(self):
-        """Deprecated name of :attr:`radius_m`."""
-        warn_renamed("HatParams", "radius", "radius_m")
-        return self.radius_m
-
-    @property
-    def thickness(self):
-        """Deprecated name of :attr:`thickness_m`."""
-        warn_renamed("HatParams", "thickness", "thickness_m")
-        return self.thickness_m
-
-    @property
-    def brim_width(self):
-        """Deprecated name of :attr:`brim_width_m`."""
-        warn_renamed("HatParams", "brim_width", "brim_width_m")
-        return self.brim_width_m
-
-    @property
-    def brim_height(self):
-        """Deprecated name of :attr:`brim_height_m`."""
-        warn_renamed("HatParams", "brim_height", "brim_height_m")
-        return self.brim_height_m
-
-    @property
-    def base_center(self):
-        """Deprecated name of :attr:`base_center_m`."""
-        warn_renamed("HatParams", "base_center", "base_center_m")
-        return self.base_center_m
+    height = renamed_attribute("height_m")
+    radius = renamed_attribute("radius_m")
+    thickness = renamed_attribute("thickness_m")
+    brim_width = renamed_attribute("brim_width_m")
+    brim_height = renamed_attribute("brim_height_m")
+    base_center = renamed_attribute("base_center_m")
 
 
 HatParams.__init__ = renamed_kwargs(height="height_m", radius="radius_m", thickness="thickness_m",

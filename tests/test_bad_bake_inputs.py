@@ -13,7 +13,7 @@ import pytest
 
 from kdfaces import KDInputError
 from kdfaces.bake import plan_bake
-from kdfaces.bake.bake import WORKER_BASE_BYTES, check_scheduler_address
+from kdfaces.bake.cluster import WORKER_BASE_BYTES, check_scheduler_address
 from kdfaces.cli import main
 
 DEMO = Path(__file__).resolve().parents[1] / "kdfaces" / "shots" / "demo.toml"
@@ -67,7 +67,7 @@ def test_a_bad_scheduler_address_fails_within_5_s(tmp_path, capsys, address, exp
 
 def test_a_port_that_speaks_another_protocol_fails_within_5_s(tmp_path, capsys, web_port):
     from kdfaces import KDIOError
-    from kdfaces.bake.bake import _connect
+    from kdfaces.bake.cluster import _connect
 
     address = f"tcp://127.0.0.1:{web_port}"
     t0 = time.perf_counter()

@@ -19,7 +19,7 @@ from kdfaces import (
 )
 from kdfaces.dynamics import FaceSystem
 from kdfaces.ikd import CorrectedTrajectory
-from kdfaces.ikd.solver import build_correction
+from kdfaces.ikd.constraints import build_correction
 from kdfaces.shots import demo_animation
 from kdfaces.shots.demo import demo_face_model
 

@@ -34,10 +34,10 @@ from .. import defaults
 from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError, check_finite
 from .bases import Basis
-from .corrections import POSITION, VELOCITY
+from .corrections import POSITION, VELOCITY, Correction, Slot
 
 __all__ = ["Constraint", "pose_constraint", "subset_constraint", "velocity_constraint", "end_effector_constraint",
-           "plane_constraint", "KINDS", "POINT_KINDS"]
+           "plane_constraint", "build_correction", "KINDS", "POINT_KINDS"]
 
 KINDS = ("pose", "subset", "velocity", "end_effector", "plane")
 #: Kinds measured at one point p = Σ w_j x_j (their weights sum to one).
@@ -310,3 +310,61 @@ def plane_constraint(time_s, normal, offset_m: float, vertices, basis: Basis, *,
         raise KDInputError(f"{label}: the plane normal must be non-zero")
     off = _target([offset_m], (1,), f"{label} offset_m")
     return dataclasses.replace(ee, kind="plane", target=off, normal=n / norm, inequality=side == "below")
+
+
+def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None
+                     ) -> tuple[Correction, list[int]]:
+    """Slots for the constraints (one per time and kind; constraints at one time share it) and each one's slot.
+
+    Raises :class:`KDInputError` for constraints at the same time with different bells or conflicting targets,
+    naming both as ``constraints[i]`` (their :attr:`~Constraint.index`, else their position in the list) after
+    ``where`` (e.g. the shot file) when given.
+    """
+    keys: dict[tuple[float, str], list[int]] = {}
+    for i, c in enumerate(constraints):
+        keys.setdefault((round(c.time_s, 9), c.slot_kind), []).append(i)
+    slots, slot_of = [], [0] * len(constraints)
+    for a, (_key, members) in enumerate(sorted(keys.items())):
+        first = constraints[members[0]]
+        for i in members[1:]:
+            c = constraints[i]
+            if c.basis != first.basis:
+                raise KDInputError(f"{_pair(constraints, members[0], i, where)} share one correction curve but ask "
+                                   "for different curve shapes or widths; expected the same curve and width_s for "
+                                   "constraints at one time")
+            for j in members[:members.index(i)]:
+                _check_conflict(constraints, j, i, where)
+            slot_of[i] = a
+        slot_of[members[0]] = a
+        slots.append(Slot(first.time_s, first.slot_kind, first.basis))
+    return Correction(slots, state_shape), slot_of
+
+
+def _pair(constraints: list[Constraint], i: int, j: int, where: str | None) -> str:
+    """``where: constraints[i] and constraints[j]: <name> and <name>``: two constraints as a shot file's fields
+    (their :attr:`~Constraint.index`, else their position in the list) and as their unique names."""
+    a, b = constraints[i], constraints[j]
+    ka, kb = (a.index if a.index >= 0 else i), (b.index if b.index >= 0 else j)
+    return f"{where + ': ' if where else ''}constraints[{ka}] and constraints[{kb}]: {a.name} and {b.name}"
+
+
+def _check_conflict(constraints: list[Constraint], i: int, j: int, where: str | None) -> None:
+    a, b = constraints[i], constraints[j]
+    if a.kind == "plane" or b.kind == "plane":
+        return  # an inequality or a one-dimensional target: it cannot contradict a point target by itself
+    if a.kind == "end_effector" or b.kind == "end_effector":
+        ee, other = (a, b) if a.kind == "end_effector" else (b, a)
+        if other.kind in ("pose", "subset") and np.isin(ee.indices, other.indices).all():
+            pos = dict(zip(other.indices.tolist(), other.target))
+            p = ee.weights @ np.array([pos[v] for v in ee.indices.tolist()])
+            if np.linalg.norm(p - ee.target) > 1e-9:
+                raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets: the pose puts the "
+                                   f"end effector {np.linalg.norm(p - ee.target):.3g} m from its target; expected "
+                                   "targets that agree, or the constraints at different times")
+        return
+    shared, ia, ib = np.intersect1d(a.indices, b.indices, return_indices=True)
+    if len(shared) and np.abs(a.target[ia] - b.target[ib]).max() > 1e-9:
+        gap = float(np.linalg.norm(a.target[ia] - b.target[ib], axis=1).max())
+        raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets on {len(shared)} shared "
+                           f"vertices (up to {gap:.3g} {a.unit} apart); expected one target per vertex at one time "
+                           "(drop one, or move one to another time_s)")

@@ -18,19 +18,20 @@ Algorithm 1, the correction e = lift(r) and the response d it causes):
   linearised map), a Newton step once the pairs span the point's three coordinates.
 
 Every later sweep updates all constraints at once, Δ_i += s·step_i (Jacobi), and evaluates every constraint's KD
-state in **one batched** ``simulate_kd`` call. The model is trusted only while the map behaves linearly: a step
-of scale s should leave (1 − s) of the residual, and a constraint whose error does not shrink to within
-:data:`LINEARITY_SLACK` of that predicted factor gets a fresh trial at its new state before its next step — the
-paper's update, improved by the pairs it keeps (a step that made the error grow clears them: the paper's update
-exactly). Typical cost: N trials once, then one batched simulation per sweep where the map is linear (a face);
-two simulations per sweep, like Algorithm 1, where it is not (a hat tip moved through the head posture).
+state in **one batched** ``simulate_kd`` call (:mod:`kdfaces.ikd.secant` holds the model). The model is trusted
+only while the map behaves linearly: a step of scale s should leave (1 − s) of the residual, and a constraint whose
+error does not shrink to within :data:`~kdfaces.ikd.secant.LINEARITY_SLACK` of that predicted factor gets a fresh
+trial at its new state before its next step — the paper's update, improved by the pairs it keeps (a step that made
+the error grow clears them: the paper's update exactly). Typical cost: N trials once, then one batched simulation
+per sweep where the map is linear (a face); two simulations per sweep, like Algorithm 1, where it is not (a hat tip
+moved through the head posture).
 
 Both stop when every constraint is within tolerance (metres, or m/s for velocity constraints), after
 ``max_iterations`` sweeps, on divergence, or out of reach: when the correction grows past ``max_correction_m``, or
-when a trial's response is (nearly) orthogonal to the residual (|cos(r, d)| < :data:`STATIONARY_COS`: no step
-along the correction's direction brings the point closer, a stationary point of the distance above tolerance,
-e.g. a hat tip sent above the highest point any head posture lifts it to). The result says which, with
-residuals — never a hang.
+when a trial's response is (nearly) orthogonal to the residual (|cos(r, d)| below
+:data:`~kdfaces.ikd.secant.STATIONARY_COS`: no step along the correction's direction brings the point closer, a
+stationary point of the distance above tolerance, e.g. a hat tip sent above the highest point any head posture lifts
+it to). The result says which, with residuals — never a hang.
 
 The corrected state is the trajectory's own (``trajectory.state_shape``): a face's vertex positions, where a
 residual lifts directly (eq. 1, or eq. 4–5 for an end effector), or a skeleton's joint angles, where the system
@@ -59,11 +60,12 @@ from ..deprecation import renamed_attribute, renamed_kwargs
 from ..errors import KDInputError
 from ..kd import simulate_kd
 from .clearance import Clearance
-from .constraints import POINT_KINDS, Constraint
-from .corrections import POSITION, CorrectedTrajectory, Correction, Slot
+from .constraints import Constraint, build_correction
+from .corrections import POSITION, CorrectedTrajectory, Correction
 from .lifts import Surface, gradient_ratio, seam_ratio
+from .secant import LINEARITY_SLACK, Secant, no_way_closer
 
-__all__ = ["IKDResult", "solve_ikd", "build_correction", "constraint_errors", "independent_check", "UPDATES",
+__all__ = ["IKDResult", "solve_ikd", "constraint_errors", "independent_check", "UPDATES",
            "OffGridConstraintWarning"]
 
 UPDATES = ("paper", "secant")
@@ -71,20 +73,6 @@ UPDATES = ("paper", "secant")
 MAX_CORRECTION_RAD = 0.5 * np.pi
 #: Largest correction of a joint-angle *rate* (a velocity slot's Δθ̇) [rad/s] before a target is out of reach.
 MAX_CORRECTION_RAD_PER_S = 4.0 * np.pi
-#: The secant update trusts its model while a step of scale s leaves at most (1 − s + this) of the error (a linear
-#: map leaves 1 − s); a larger error gets a fresh trial (the paper's update) before the constraint's next step.
-LINEARITY_SLACK = 0.1
-#: A trial whose response d makes |cos(r, d)| smaller than this with the residual r cannot bring the measured
-#: quantity closer (the best step along it shortens ‖r‖ by under 0.13 %): the target is reported out of reach.
-STATIONARY_COS = 0.05
-#: The secant step's length is at most this many times the longest one-pair (paper) step for the same residual.
-SECANT_TRUST = 2.0
-#: A residual below this fraction of its quantity's size (1 nm on a 1 m point) is rounding noise: never "no way closer".
-NOISE_FLOOR = 1e-9
-#: Secant pairs a point constraint keeps (at most its residual's size: 3 for an end effector, 1 for a plane).
-SECANT_PAIRS = 3
-
-
 class OffGridConstraintWarning(UserWarning):
     """A constraint time falls between frames: it is met there, but a cache of the frames never shows it."""
 
@@ -181,64 +169,6 @@ class IKDResult:
     damping = renamed_attribute("step_scale")
 
 
-def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None
-                     ) -> tuple[Correction, list[int]]:
-    """Slots for the constraints (one per time and kind; constraints at one time share it) and each one's slot.
-
-    Raises :class:`KDInputError` for constraints at the same time with different bells or conflicting targets,
-    naming both as ``constraints[i]`` (their :attr:`~Constraint.index`, else their position in the list) after
-    ``where`` (e.g. the shot file) when given.
-    """
-    keys: dict[tuple[float, str], list[int]] = {}
-    for i, c in enumerate(constraints):
-        keys.setdefault((round(c.time_s, 9), c.slot_kind), []).append(i)
-    slots, slot_of = [], [0] * len(constraints)
-    for a, (_key, members) in enumerate(sorted(keys.items())):
-        first = constraints[members[0]]
-        for i in members[1:]:
-            c = constraints[i]
-            if c.basis != first.basis:
-                raise KDInputError(f"{_pair(constraints, members[0], i, where)} share one correction curve but ask "
-                                   "for different curve shapes or widths; expected the same curve and width_s for "
-                                   "constraints at one time")
-            for j in members[:members.index(i)]:
-                _check_conflict(constraints, j, i, where)
-            slot_of[i] = a
-        slot_of[members[0]] = a
-        slots.append(Slot(first.time_s, first.slot_kind, first.basis))
-    return Correction(slots, state_shape), slot_of
-
-
-def _pair(constraints: list[Constraint], i: int, j: int, where: str | None) -> str:
-    """``where: constraints[i] and constraints[j]: <name> and <name>``: two constraints as a shot file's fields
-    (their :attr:`~Constraint.index`, else their position in the list) and as their unique names."""
-    a, b = constraints[i], constraints[j]
-    ka, kb = (a.index if a.index >= 0 else i), (b.index if b.index >= 0 else j)
-    return f"{where + ': ' if where else ''}constraints[{ka}] and constraints[{kb}]: {a.name} and {b.name}"
-
-
-def _check_conflict(constraints: list[Constraint], i: int, j: int, where: str | None) -> None:
-    a, b = constraints[i], constraints[j]
-    if a.kind == "plane" or b.kind == "plane":
-        return  # an inequality or a one-dimensional target: it cannot contradict a point target by itself
-    if a.kind == "end_effector" or b.kind == "end_effector":
-        ee, other = (a, b) if a.kind == "end_effector" else (b, a)
-        if other.kind in ("pose", "subset") and np.isin(ee.indices, other.indices).all():
-            pos = dict(zip(other.indices.tolist(), other.target))
-            p = ee.weights @ np.array([pos[v] for v in ee.indices.tolist()])
-            if np.linalg.norm(p - ee.target) > 1e-9:
-                raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets: the pose puts the "
-                                   f"end effector {np.linalg.norm(p - ee.target):.3g} m from its target; expected "
-                                   "targets that agree, or the constraints at different times")
-        return
-    shared, ia, ib = np.intersect1d(a.indices, b.indices, return_indices=True)
-    if len(shared) and np.abs(a.target[ia] - b.target[ib]).max() > 1e-9:
-        gap = float(np.linalg.norm(a.target[ia] - b.target[ib], axis=1).max())
-        raise KDInputError(f"{_pair(constraints, i, j, where)} have conflicting targets on {len(shared)} shared "
-                           f"vertices (up to {gap:.3g} {a.unit} apart); expected one target per vertex at one time "
-                           "(drop one, or move one to another time_s)")
-
-
 class _KD:
     """Counts and batches the KD simulations of a solve.
 
@@ -289,105 +219,6 @@ def constraint_errors(constraints, pairs, step_s) -> tuple[list[np.ndarray], np.
     """Residuals and reported errors of constraints for their KD state pairs (x, x_prev); ``step_s`` [s]."""
     res = [c.residual(x, xp, step_s) for c, (x, xp) in zip(constraints, pairs)]
     return res, np.array([c.error(r) for c, r in zip(constraints, res)])
-
-
-def _response(r: np.ndarray, d: np.ndarray) -> np.ndarray | None:
-    """Per-coordinate response of a vertex-state constraint's quantity to a correction lift(r): d ≈ c ⊙ r, clipped
-    to [0.2, 5]× the scalar least-squares response (r·d)/‖r‖²; None when that scalar is not positive."""
-    rr = float((r * r).sum())
-    if rr == 0.0:
-        return None
-    scalar = float((r * d).sum()) / rr
-    if not np.isfinite(scalar) or scalar <= 0.0:
-        return None
-    big = np.abs(r) >= 0.05 * np.abs(r).max()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        per = np.where(big, d / np.where(big, r, 1.0), scalar)
-    return np.clip(per, 0.2 * scalar, 5.0 * scalar)
-
-
-def _no_way_closer(r: np.ndarray, d: np.ndarray, q: np.ndarray) -> bool:
-    """True when a trial's response d is (nearly) orthogonal to the residual r, |cos(r, d)| < :data:`STATIONARY_COS`
-    (no step along it brings the quantity closer), and r is above the rounding noise of the quantity q (a residual
-    of 1e-17 m has a response of noise, at any angle)."""
-    nr, nd = float(np.linalg.norm(r)), float(np.linalg.norm(d))
-    if nr <= NOISE_FLOOR * max(float(np.linalg.norm(q)), float(np.linalg.norm(q + r))):
-        return False
-    if nd == 0.0 or not np.isfinite(nd):
-        return True
-    return abs(float((r * d).sum())) < STATIONARY_COS * nr * nd
-
-
-class _Secant:
-    """One constraint's model of how its measured quantity answers its correction (``update="secant"``, see the
-    module docstring): a per-coordinate response (``diagonal``: vertex-state pose, subset, velocity) or the last
-    few secant pairs (u_j, Δq_j): the correction lift(u_j) moved the quantity by Δq_j (point constraints and lifts
-    through a Jacobian). The pairs are kept in the lift's input space, the residual's, so a step is lifted at the
-    current state (through the current Jacobian for joint angles) whatever state a pair was measured at."""
-
-    def __init__(self, c: Constraint, through: bool):
-        self.diagonal = c.kind not in POINT_KINDS and not through
-        self.pairs_max = 1 if self.diagonal else SECANT_PAIRS  # diagonal: the last trial, for a projection step
-        self.response = None  # diagonal: c (per coordinate)
-        self.pairs: list[tuple[np.ndarray, np.ndarray]] = []
-        self.trusted = False  # the last step shrank the error by the predicted factor: no trial before the next
-
-    def trial(self, r: np.ndarray, d: np.ndarray) -> None:
-        """A fresh trial at the current state: the correction lift(r) moved the quantity by d (line 9)."""
-        self.response = _response(r, d) if self.diagonal else None
-        self._add(r, d)
-
-    def _add(self, u: np.ndarray, dq: np.ndarray) -> None:
-        """Keep (u, dq) and the newest older pairs whose u is at least 30° from the span of those kept (pairs in
-        one direction that disagree are a nonlinearity, not two directions)."""
-        kept = [(u, dq)]
-        basis = [u.reshape(-1) / max(float(np.linalg.norm(u)), 1e-300)]
-        for pu, pq in reversed(self.pairs):
-            if len(kept) >= min(self.pairs_max, dq.size):
-                break
-            v = pu.reshape(-1)
-            perp = v - sum(float(b @ v) * b for b in basis)
-            if np.linalg.norm(perp) >= 0.5 * np.linalg.norm(v):
-                kept.insert(0, (pu, pq))
-                basis.append(perp / np.linalg.norm(perp))
-        self.pairs = kept
-
-    def step(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The lift input u of the (unscaled) step for residual r and the residual the model predicts after it;
-        None without a model."""
-        if self.diagonal and self.response is not None:
-            return r / self.response, np.zeros_like(r)
-        if not self.pairs:
-            return None
-        Y = np.stack([dq.reshape(-1) for _, dq in self.pairs], axis=1)
-        scale = np.linalg.norm(Y, axis=0)
-        if not (scale > 0).all():
-            return None
-        # β = argmin ‖r − Y β‖ (columns normalised): with one pair (r_j, d_j), β = r·d/‖d‖², the paper's
-        # projection (eq. 3, 5); u = Σ β_j u_j
-        beta = np.linalg.lstsq(Y / scale, r.reshape(-1), rcond=1e-3)[0] / scale
-        u = sum(b * pu for b, (pu, _) in zip(beta, self.pairs))
-        # a trust region: no longer than SECANT_TRUST × the longest step one pair alone would take for r
-        # (‖r‖·‖u_j‖/‖Δq_j‖; the paper's projection is at most that long), where pairs that nearly cancel ask for more
-        reach = SECANT_TRUST * float(np.linalg.norm(r)) * max(float(np.linalg.norm(pu)) / q for (pu, _), q in
-                                                                zip(self.pairs, scale))
-        size = float(np.linalg.norm(u))
-        if size > reach:
-            beta, u = beta * (reach / size), u * (reach / size)
-        return u, r - (Y @ beta).reshape(r.shape)
-
-    def check(self, u: np.ndarray, r_old: np.ndarray, r_new: np.ndarray, err_old: float, err_new: float,
-              step_scale: float, alone: bool) -> None:
-        """After the step lift(u) (``u`` already scaled by s): a linear map leaves (1 − s) of the error. Trust the
-        model only when the error shrank to within :data:`LINEARITY_SLACK` of that; otherwise the map is not
-        behaving linearly over such steps and the model is dropped, so the next step is the paper's update exactly
-        (a fresh trial at the new state, eq. 3 or 5). A trusted constraint that stepped ``alone`` (no other
-        correction changed in the sweep) keeps its step as a secant pair."""
-        self.trusted = err_new <= (1.0 - step_scale + LINEARITY_SLACK) * err_old
-        if not self.trusted:
-            self.pairs, self.response = [], None
-        elif alone and not self.diagonal:
-            self._add(u, r_old - r_new)  # r = target − q: the quantity moved by r_old − r_new
 
 
 class _Lifter:
@@ -615,7 +446,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
     limit = limit.reshape(-1, *([1] * (len(lift.state_shape) - 1)))
     res, err = constraint_errors(constraints, pairs, h)
     history = [err]
-    models = [_Secant(c, lift.through) for c in constraints]
+    models = [Secant(c, lift.through) for c in constraints]
     stationary = np.zeros(len(constraints), dtype=bool)  # a trial found no way closer: out of reach (frozen)
     it = 0
     while it < max_iterations and not (err <= tol).all():
@@ -631,7 +462,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
                 (xt, xtp), = kd.at(bump, [c])  # line 9
                 d = c.measure(xt, xtp, h) - c.measure(x, xp, h)
                 dd = float((d * d).sum())
-                if c.error(r) > tol[i] and _no_way_closer(r, d, c.measure(x, xp, h)):
+                if c.error(r) > tol[i] and no_way_closer(r, d, c.measure(x, xp, h)):
                     stationary[i] = True
                     continue
                 if dd == 0.0:
@@ -650,7 +481,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
                     bump = CorrectedTrajectory(trajectory, corr, bump=(corr.slots[slot_of[i]], e))
                     (xt, xtp), = kd.at(bump, [c])
                     d = c.measure(xt, xtp, h) - c.measure(x, xp, h)
-                    if _no_way_closer(res[i], d, c.measure(x, xp, h)):
+                    if no_way_closer(res[i], d, c.measure(x, xp, h)):
                         stationary[i] = True
                         continue
                     m.trial(res[i], d)

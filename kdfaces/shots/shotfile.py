@@ -69,12 +69,12 @@ from ..errors import KDInputError
 from ..ikd.bases import make_basis
 from ..ikd.constraints import (
     Constraint,
+    build_correction,
     end_effector_constraint,
     pose_constraint,
     subset_constraint,
     velocity_constraint,
 )
-from ..ikd.solver import build_correction
 from ..io.rigfiles import read_obj
 from ..motion.curves import KeyframeCurve
 from ..motion.joints import JointDrive, SkeletonAnimation

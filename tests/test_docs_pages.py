@@ -5,15 +5,14 @@ A block whose first line is ``# illustrative only`` is shown, not run; keep such
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
 import pytest
+from test_readme import ILLUSTRATIVE, run_snippet
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 PAGES = sorted(p for p in DOCS.glob("*.md") if p.name != "readme.md")  # readme.md includes README.md
-ILLUSTRATIVE = "# illustrative only"
 
 
 def python_blocks(text: str) -> list[str]:
@@ -39,12 +38,7 @@ def test_illustrative_blocks_are_rare():
 @pytest.mark.parametrize("page, index, code", [b for b in BLOCKS if not b[2].startswith(ILLUSTRATIVE)],
                          ids=[f"{p}-{i}" for p, i, c in BLOCKS if not c.startswith(ILLUSTRATIVE)])
 def test_page_snippet_runs(page, index, code, tmp_path):
-    cwd = os.getcwd()
-    os.chdir(tmp_path)  # snippets that write files write them here
-    try:
-        exec(compile(code, f"docs/{page} python block {index}", "exec"), {"__name__": "__docs__"})
-    finally:
-        os.chdir(cwd)
+    run_snippet(code, f"docs/{page} python block {index}", tmp_path)
 
 
 def test_pages_name_existing_verbs():

@@ -20,6 +20,17 @@ def python_blocks(text: str) -> list[str]:
     return [b for b in re.findall(r"```python\n(.*?)```", text, flags=re.S) if not b.startswith(ILLUSTRATIVE)]
 
 
+def run_snippet(code: str, name: str, folder) -> None:
+    """Run a documentation python block as a user would paste it into a script, in ``folder`` (a snippet that
+    writes files writes them there)."""
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        exec(compile(code, name, "exec"), {"__name__": "__snippet__"})
+    finally:
+        os.chdir(cwd)
+
+
 def test_readme_starts_with_the_two_commands():
     text = README.read_text()
     first = re.search(r"```sh\n(.*?)```", text, flags=re.S)
@@ -45,13 +56,7 @@ def test_readme_links_every_guide_page():
 
 @pytest.mark.parametrize("index", range(len(python_blocks(README.read_text()))))
 def test_readme_snippet_runs(index, tmp_path):
-    code = python_blocks(README.read_text())[index]
-    cwd = os.getcwd()
-    os.chdir(tmp_path)  # snippets that write files write them here
-    try:
-        exec(compile(code, f"README.md python block {index}", "exec"), {"__name__": "__readme__"})
-    finally:
-        os.chdir(cwd)
+    run_snippet(python_blocks(README.read_text())[index], f"README.md python block {index}", tmp_path)
 
 
 def test_readme_verbs_exist():

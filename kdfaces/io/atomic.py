@@ -7,6 +7,7 @@ Files are created with the permissions of an ordinary ``open`` (0666 less the pr
 
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 import tempfile
@@ -96,19 +97,12 @@ def remove_stale_siblings(path: Path, kinds=("partial", "old")) -> list[Path]:
     if not parent.is_dir():
         return removed
     for kind in kinds:
-        for p in parent.glob(f".{glob_escape(path.name)}.{kind}-*-*"):
+        for p in parent.glob(f".{glob.escape(path.name)}.{kind}-*-*"):
             pid = p.name[len(f".{path.name}.{kind}-"):].split("-", 1)[0]
             if pid.isdigit() and not _pid_alive(int(pid)) and p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
     return removed
-
-
-def glob_escape(name: str) -> str:
-    """``name`` with glob metacharacters escaped (for :meth:`Path.glob`)."""
-    import glob
-
-    return glob.escape(name)
 
 
 def _files_under(folder: Path) -> list[str]:

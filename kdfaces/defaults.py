@@ -12,6 +12,7 @@ __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "JOINT_SETTLE_TIME_S", "JOINT_DAMPING_RATIO", "SHAPE_MATCHING_ALPHA",
     "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
     "CLUSTER_RINGS", "REGION_MARGIN_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
+    "FACE_REGION",
     "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
@@ -43,6 +44,9 @@ CLUSTER_RINGS = 2
 #: The moving region (:func:`kdfaces.rig.region.moving_region`) reaches this many mesh rings past the vertices the
 #: shapes move and the head chain skins, so its boundary does not cut through moving skin.
 REGION_MARGIN_RINGS = 2
+#: What a face model simulates (:meth:`kdfaces.dynamics.FaceModel.from_rig`): "auto", the rig's moving region
+#: (the rest follows x_K exactly), or None for every vertex.
+FACE_REGION = "auto"
 #: Cluster rotation fit: "iterative" (Newton on SO(3), warm-started; matches "svd3" within ε/100, several times
 #: faster) or "svd3"; and the iterative fit's Newton iterations per step.
 ROTATION = "iterative"

@@ -12,6 +12,10 @@ stays within ε of rest (γ = −c/2 is the decay rate):
 
 :func:`adaptive_windows` sizes a window per time instead (``window_s = "adaptive"``, §6.4's future work): the
 smallest window whose truncation error, bounded from the kinematic trajectory's own recent history, is ≤ ε.
+
+Both are measured on the face model's region (:attr:`~kdfaces.dynamics.FaceModel.region`, the rig's moving region
+by default): ε is 0.1 % of the region's diameter, ẍ_max and the kicks are taken over its vertices, so a full-body
+avatar gets the window of its face cut out alone (the body outside follows x_K exactly).
 """
 
 from __future__ import annotations
@@ -25,6 +29,12 @@ from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, 
 from .deprecation import renamed_attribute, renamed_kwargs
 from .errors import KDInputError
 from .motion.trajectory import scan_trajectory
+
+
+def _region(model) -> np.ndarray | None:
+    """The simulated vertex indices (R,) of a face model (its ``region``), or None: every vertex."""
+    region = getattr(model, "region", None)
+    return None if region is None else np.asarray(region, dtype=np.int64)
 
 __all__ = ["DEFAULT_EPSILON_FRACTION", "damping_regime", "window_1d", "WindowEstimate", "automatic_window",
            "grid_size", "grid_times", "check_scan", "AdaptiveWindows", "adaptive_windows", "impulse_responses",
@@ -151,7 +161,9 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     and ``diameter_m`` [m] (a :class:`~kdfaces.dynamics.FaceSystem` or :class:`~kdfaces.dynamics.FaceModel`), and
     §5.2 applies: ẍ_max is the largest ‖ẍ_K‖ over vertices at ``times`` (default the step grid over the shot),
     ẋ0 = ẍ_max·h, and each distinct gain pair gets its own 1-D window; the largest is returned (shape matching is
-    not modelled, it only couples vertices). ``step_s`` [s] defaults to the frame interval; ``epsilon_m`` [m] to
+    not modelled, it only couples vertices). A model with a ``region`` (R,) is measured on it: ẍ_max over the
+    region's vertices, gains of the region's vertices, and its ``diameter_m`` is the region's (the body around a
+    face follows x_K exactly and sets nothing). ``step_s`` [s] defaults to the frame interval; ``epsilon_m`` [m] to
     0.1 % of the diameter. The scan is bounded: more than ``max_steps`` vertex-steps of sampling (times × vertices ×
     :data:`~kdfaces.defaults.SCAN_COST`; default :data:`~kdfaces.defaults.MAX_STEPS`, None: no bound) is a
     :class:`KDInputError` before anything is sampled (:func:`check_scan`).
@@ -165,17 +177,23 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
                            "per-vertex gains kp, kd and a diameter_m")
     h = default_step(trajectory, step_s)
     epsilon = DEFAULT_EPSILON_FRACTION * model.diameter_m if epsilon_m is None else float(epsilon_m)
+    region = _region(model)
     n_vertices = int(getattr(model, "num_vertices", np.size(model.kp)))
     check_scan(grid_size(trajectory, h) if times is None else np.size(times), n_vertices, max_steps)
     t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
     acc_max = 0.0
     for i in range(0, len(t), 32):
         acc = scan_trajectory(trajectory, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
+        if region is not None:
+            acc = acc[:, region]  # §5.2's ẍ_max over the simulated (face) vertices only
         acc_max = max(acc_max, float(np.sqrt((acc**2).sum(axis=-1)).max()))
     v0 = acc_max * h
-    windows = np.atleast_1d(window_1d(v0, model.kp, model.kd, epsilon_m=epsilon))
+    kp, kd = model.kp, model.kd
+    if region is not None and np.ndim(kp) and np.ndim(kd):
+        kp, kd = np.asarray(kp)[region], np.asarray(kd)[region]
+    windows = np.atleast_1d(window_1d(v0, kp, kd, epsilon_m=epsilon))
     j = int(np.argmax(windows))
-    kp, kd = np.broadcast_to(model.kp, windows.shape), np.broadcast_to(model.kd, windows.shape)
+    kp, kd = np.broadcast_to(kp, windows.shape), np.broadcast_to(kd, windows.shape)
     return WindowEstimate(window_s=float(windows[j]), epsilon_m=float(epsilon), acceleration_max_mps2=acc_max,
                           initial_speed_mps=v0, regime=str(damping_regime(kp[j], kd[j])))
 
@@ -364,8 +382,9 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
 
     A system with its own ``adaptive_windows`` method (the FEM hat: from its modal envelope) answers itself.
     Otherwise ``system`` is a face system or model (gains ``kp``, ``kd`` (N,), ``diameter_m``, and optionally
-    ``shape_matching_alpha``, ``damping_mode``, ``rigid_mask``); ε = ``epsilon_m`` [m] bounds every vertex, default
-    0.1 % of the diameter as for :func:`automatic_window`. ``times`` [s] default to the step grid; ``step_s`` h to
+    ``shape_matching_alpha``, ``damping_mode``, ``rigid_mask``, ``region``); ε = ``epsilon_m`` [m] bounds every
+    simulated vertex (the region's: the others follow x_K exactly, like rigid ones), default 0.1 % of the
+    (region's) diameter as for :func:`automatic_window`. ``times`` [s] default to the step grid; ``step_s`` h to
     the frame interval; ``start_s`` (default the shot start) is where the full simulation starts. The scan of x_K is
     bounded by ``max_steps`` vertex-steps as in :func:`automatic_window` (checked before it starts).
 
@@ -422,6 +441,11 @@ def adaptive_windows(system, trajectory, times=None, *, step_s: float | None = N
     kp, kd = np.broadcast_to(model.kp, (model.num_vertices,)), np.broadcast_to(model.kd, (model.num_vertices,))
     rigid = np.asarray(getattr(model, "rigid_mask", np.zeros(len(kp), bool)), dtype=bool)
     free = ~rigid
+    region = _region(model)
+    if region is not None:  # kicks over the region's vertices only
+        inside = np.zeros(len(kp), dtype=bool)
+        inside[region] = True
+        free &= inside
     if not free.any():  # every vertex follows x_K: KD is exact with no window at all
         z = np.zeros(len(t))
         return AdaptiveWindows(times=t, steps=z.astype(np.int64), window_s=z, bound_m=z, epsilon_m=eps, step_s=h,

@@ -7,6 +7,10 @@ Equation of motion of vertex i (mass m_i, kinematic target x_K,i(t)), in the def
 The damper acts on the velocity relative to the kinematic velocity, so a face carried at constant velocity by
 the head stays on its kinematic pose. The paper's PD form damps the absolute velocity, −kd_i ẋ_i
 (``damping_mode="absolute"``); on a moving head it lags the whole face by kd·v/kp.
+
+The model simulates its *region* (paper §4.5: the face is the simulated part; :mod:`kdfaces.rig.region`): a
+full-body avatar moves only its face and head, so :meth:`FaceModel.from_rig` simulates the rig's moving region and
+every other vertex follows x_K exactly, at no cost per step. ε and the diameter of §5.2 are the region's.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from .. import defaults
 from ..deprecation import renamed_attribute, renamed_kwargs
@@ -52,6 +57,27 @@ def _mask(value, n: int) -> np.ndarray | None:
     return out
 
 
+def _region(value, n: int) -> np.ndarray | None:
+    """Sorted unique vertex indices (R,) int64 from a (n,) bool mask or indices; None (or every vertex): None."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise KDInputError(f"region: expected a ({n},) mask or vertex indices, got a mask of shape {a.shape}")
+        idx = np.flatnonzero(a)
+    else:
+        if a.size and (a.dtype.kind not in "iu" or a.ndim != 1):
+            raise KDInputError(f"region: expected a ({n},) bool mask or 1-D integer vertex indices, got "
+                               f"{a.dtype} of shape {a.shape}")
+        idx = np.unique(a.astype(np.int64))
+        if idx.size and (idx[0] < 0 or idx[-1] >= n):
+            raise KDInputError(f"region: vertex indices must lie in [0, {n}), got {idx[0] if idx[0] < 0 else idx[-1]}")
+    if not idx.size:
+        raise KDInputError("region: expected at least one vertex to simulate, got none")
+    return None if len(idx) == n else idx.astype(np.int64)
+
+
 def _per_vertex(value, n: int, what: str) -> np.ndarray:
     a = np.asarray(value, dtype=np.float64)
     if a.ndim == 0:
@@ -75,13 +101,16 @@ class FaceModel:
         clusters: shape-matching clusters (:class:`Clusters`).
         shape_matching_alpha: shape-matching stiffness α ∈ [0, 1] (Müller et al. 2005), dimensionless.
         damping_mode: "relative" (damps ẋ − ẋ_K, default) or "absolute" (the paper's −K_d·ẋ).
-        diameter_m: bounding-box diagonal of the rest mesh [m] (sets ε and the blow-up bound; ``diameter``, its
-            old name, still works for one release with a :class:`DeprecationWarning`).
+        diameter_m: bounding-box diagonal of the rest mesh over the region [m] (the "face diameter" of §5.2: sets
+            ε and the blow-up bound; ``diameter``, its old name, still works for one release with a
+            :class:`DeprecationWarning`).
         rotation: how cluster rotations are fitted: "iterative" (Newton's method on SO(3) for the polar rotation,
             warm-started from the previous step; the default, several times faster) or "svd3" (polar part of A_pq
             from Warp's svd3, float64). Both fit A_pq + η·I, so they agree to float32 round-off once converged.
         rotation_iterations: Newton iterations per step for "iterative".
         rigid: vertices that follow x_K exactly (rigid parts: teeth, eyes), shape (N,), bool, or None (none).
+        region: the simulated vertices, sorted indices (R,) int64, or None (every vertex). The others follow x_K
+            exactly and cost nothing per step; clusters hold region vertices only. Per-vertex arrays stay (N,).
     """
 
     mass: np.ndarray
@@ -96,6 +125,7 @@ class FaceModel:
     rotation: str = defaults.ROTATION
     rotation_iterations: int = defaults.ROTATION_ITERATIONS
     rigid: np.ndarray | None = None
+    region: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.mass)
@@ -114,6 +144,17 @@ class FaceModel:
             raise KDInputError(f"rotation_iterations: expected an integer >= 1, got {self.rotation_iterations}")
         if self.rigid is not None and np.shape(self.rigid) != (n,):
             raise KDInputError(f"rigid: expected a (N,) = ({n},) mask, got shape {np.shape(self.rigid)}")
+        if self.region is not None:
+            r = np.asarray(self.region)
+            if (r.ndim != 1 or not r.size or r.dtype.kind not in "iu" or r[0] < 0 or r[-1] >= n
+                    or (np.diff(r) <= 0).any()):
+                raise KDInputError(f"region: expected sorted unique vertex indices in [0, {n}) or None, got "
+                                   f"{r.dtype} of shape {r.shape}")
+            inside = np.zeros(n, dtype=bool)
+            inside[r] = True
+            if not inside[self.clusters.members].all():
+                raise KDInputError("clusters: expected region vertices only (vertices outside the region follow "
+                                   "x_K and are not simulated)")
 
     @property
     def rigid_mask(self) -> np.ndarray:
@@ -124,6 +165,25 @@ class FaceModel:
     def num_vertices(self) -> int:
         """N, the number of vertices."""
         return len(self.mass)
+
+    @property
+    def region_indices(self) -> np.ndarray:
+        """(R,) int64: the simulated vertices (every vertex when :attr:`region` is None)."""
+        return np.arange(self.num_vertices, dtype=np.int64) if self.region is None else np.asarray(self.region)
+
+    @property
+    def region_mask(self) -> np.ndarray:
+        """(N,) bool: the simulated vertices."""
+        if self.region is None:
+            return np.ones(self.num_vertices, dtype=bool)
+        out = np.zeros(self.num_vertices, dtype=bool)
+        out[self.region] = True
+        return out
+
+    @property
+    def num_simulated(self) -> int:
+        """R, the number of simulated vertices (the region's; what one step costs)."""
+        return self.num_vertices if self.region is None else len(self.region)
 
     alpha = renamed_attribute("shape_matching_alpha")
     damping = renamed_attribute("damping_mode")
@@ -137,7 +197,7 @@ class FaceModel:
                shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA, rings: int = defaults.CLUSTER_RINGS,
                cluster_centers="cover", areal_density_kg_m2: float = defaults.AREAL_DENSITY_KG_M2, mass=None,
                damping_mode: str = defaults.DAMPING_MODE, rotation: str = defaults.ROTATION,
-               rotation_iterations: int = defaults.ROTATION_ITERATIONS, rigid=None) -> FaceModel:
+               rotation_iterations: int = defaults.ROTATION_ITERATIONS, rigid=None, region=None) -> FaceModel:
         """Build a model on a rest mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3) int.
 
         Args:
@@ -153,6 +213,10 @@ class FaceModel:
             rotation, rotation_iterations: cluster rotation fit, "iterative" (with its Newton iterations per step)
                 or "svd3".
             rigid: vertices that follow x_K exactly: a (N,) bool mask or vertex indices (teeth, eyes).
+            region: the vertices to simulate, a (N,) bool mask or vertex indices, or None (every vertex); the
+                others follow x_K exactly. Clusters are built on the region's own triangles (faces with all three
+                corners in it), so a region simulates exactly as the same mesh cut out on its own; masses come
+                from the whole mesh's areas; ``diameter_m`` is the region's bounding-box diagonal.
         """
         settle_time, alpha, damping = settle_time_s, shape_matching_alpha, damping_mode
         areal_density = areal_density_kg_m2
@@ -171,21 +235,60 @@ class FaceModel:
                 raise KDInputError(f"mass: expected positive kilograms, got {m.min():.6g}")
         t = _per_vertex(settle_time, n, "settle_time_s")
         kp, kd = gains_from_settle_time(t, damping_ratio=damping_ratio)
-        if alpha > 0 and len(f):
-            clusters = ring_clusters(f, n, rings=rings, centers=cluster_centers)
+        reg = _region(region, n)
+        if reg is None:
+            clusters = ring_clusters(f, n, rings=rings, centers=cluster_centers) if alpha > 0 and len(f) \
+                else Clusters.empty(n)
+            vr = v
         else:
-            clusters = Clusters.empty(n)
-        diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if n else 0.0
+            clusters = _region_clusters(f, n, reg, alpha, rings, cluster_centers)
+            vr = v[reg]
+        diameter = float(np.linalg.norm(vr.max(axis=0) - vr.min(axis=0))) if n else 0.0
         return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
                    shape_matching_alpha=float(alpha), damping_mode=damping, diameter_m=diameter, rotation=rotation,
-                   rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n))
+                   rotation_iterations=int(rotation_iterations), rigid=_mask(rigid, n), region=reg)
 
     diameter = renamed_attribute("diameter_m")
 
     @classmethod
-    def from_rig(cls, rig, **kwargs) -> FaceModel:
-        """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments)."""
-        return cls.create(rig.neutral, rig.faces, **kwargs)
+    def from_rig(cls, rig, *, region=defaults.FACE_REGION, **kwargs) -> FaceModel:
+        """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments).
+
+        ``region``: "auto" (default) simulates the rig's moving region (:func:`kdfaces.rig.region.moving_region`:
+        the vertices its shapes move or its head chain skins, plus a margin; a rig with neither simulates every
+        vertex), None every vertex, or a (N,) bool mask or vertex indices. On a head-and-neck rig (the default
+        head) "auto" is every vertex.
+        """
+        if isinstance(region, str):
+            if region != "auto":
+                raise KDInputError(f"region: expected 'auto', None or vertex indices, got {region!r}")
+            from ..rig.region import moving_region
+
+            region = moving_region(rig) if rig.num_shapes or rig.skeleton is not None else None
+        return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
+
+
+def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float, rings: int,
+                     centers) -> Clusters:
+    """Clusters (over all ``n`` vertices, members in ``region`` only) built on the region's own triangles with
+    region-local numbering, then renumbered: the same clusters as the region cut out as a mesh of its own."""
+    local = np.full(n, -1, dtype=np.int64)
+    local[region] = np.arange(len(region))
+    sub = local[faces] if len(faces) else np.zeros((0, 3), np.int64)
+    sub = sub[(sub >= 0).all(axis=1)]
+    r = len(region)
+    if not (alpha > 0 and len(sub)):
+        return Clusters.empty(n)
+    if not isinstance(centers, str):  # centre indices are the rig's own: renumber them into the region
+        c = np.asarray(centers, dtype=np.int64).reshape(-1)
+        if c.size and (c.min() < 0 or c.max() >= n):
+            raise KDInputError(f"cluster centers: expected vertex indices in [0, {n})")
+        if (local[c] < 0).any():
+            raise KDInputError(f"cluster centers: vertex {int(c[local[c] < 0][0])} lies outside the region")
+        centers = local[c]
+    cl = ring_clusters(sub, r, rings=rings, centers=centers)
+    return Clusters.from_matrix(sp.csr_matrix((np.ones(len(cl.members), np.float32), region[cl.members], cl.offsets),
+                                              shape=(cl.num_clusters, n)))
 
 
 FaceModel.__init__ = renamed_kwargs(diameter="diameter_m")(FaceModel.__init__)

@@ -11,6 +11,11 @@ barriers per step hands them their part (no pool submit per step, and CPU launch
 several members is split by members; a single state (the scrub path) is split by vertices into parts along a
 bandwidth-reducing (reverse Cuthill–McKee) order of the cluster graph, so the parts meet along a short seam whose
 clusters both fit.
+
+Region: the system simulates the model's region only (:attr:`FaceModel.region`, R of the rig's N vertices): masses,
+gains, clusters, the bake and the state are over those R vertices, so a step costs the same on a full-body avatar as
+on its face cut out alone. :meth:`FaceSystem.observe` returns every vertex, (B, N, 3): the vertices outside the region
+are x_K at each member's time, evaluated once per observed state (they follow x_K exactly, paper §4.5).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from .. import defaults
 from ..errors import KDInputError, SimulationBlowUpError, check_count
 from ..motion.trajectory import scan_trajectory
 from ..resources import init_warp
+from .clusters import Clusters
 from .kernels import cluster_frames, face_step, track_step
 from .model import FaceModel
 from .workers import Workers
@@ -43,7 +49,8 @@ ROTATION_REGULARIZATION = 1e-4
 
 
 class TrajectoryBake:
-    """x_K, ẋ_K of a trajectory sampled on a step grid, as float32 Warp arrays ``xk``, ``vk`` of shape (R, N) vec3.
+    """x_K, ẋ_K of a trajectory sampled on a step grid, as float32 Warp arrays ``xk``, ``vk`` of shape (R, V) vec3:
+    R rows of the V simulated vertices (``vertices``, sorted indices into the trajectory's N, or None: all N).
 
     Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` None): row r is the time
     ``origin + (j_lo + r)·h``, read by every window that starts on that grid (``origin`` defaults to the shot start;
@@ -53,15 +60,16 @@ class TrajectoryBake:
     """
 
     def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None,
-                 origin: float | None = None):
+                 origin: float | None = None, vertices: np.ndarray | None = None):
         self.trajectory, self.h, self.device = trajectory, float(h), device
+        self.vertices = vertices
         self.origin = float(getattr(trajectory, "start", 0.0)) if origin is None else float(origin)
         self.version = getattr(trajectory, "version", None)
         self.member_times = member_times
         self.j_lo = int(j_lo)
         self.stride = 1 if member_times is None else len(member_times)
         self.num_rows = 0
-        n = trajectory.num_vertices
+        n = trajectory.num_vertices if vertices is None else len(vertices)
         self._x = np.zeros((0, n, 3), np.float32)  # host copies with spare capacity; rows [0, num_rows) are valid
         self._v = np.zeros_like(self._x)
         self.xk = wp.zeros((0, n), dtype=wp.vec3, device=device)
@@ -71,12 +79,12 @@ class TrajectoryBake:
 
     @property
     def xk_np(self) -> np.ndarray:
-        """Baked x_K [m], shape (R, N, 3), float32 (host)."""
+        """Baked x_K [m], shape (R, V, 3), float32 (host)."""
         return self._x[: self.num_rows]
 
     @property
     def vk_np(self) -> np.ndarray:
-        """Baked ẋ_K [m/s], shape (R, N, 3), float32 (host)."""
+        """Baked ẋ_K [m/s], shape (R, V, 3), float32 (host)."""
         return self._v[: self.num_rows]
 
     @staticmethod
@@ -112,7 +120,8 @@ class TrajectoryBake:
     def prepended(self, j_lo: int) -> TrajectoryBake:
         """A new shared-grid bake starting at grid index ``j_lo`` < ``self.j_lo``, reusing this one's rows (states
         that read this bake keep it)."""
-        new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo, origin=self.origin)
+        new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo, origin=self.origin,
+                             vertices=self.vertices)
         new.ensure(np.zeros(1, np.int32), self.j_lo - j_lo - 1)
         new._append(self.xk_np, self.vk_np)
         return new
@@ -149,7 +158,10 @@ class TrajectoryBake:
         need = int(rows.max()) + steps * self.stride + 1
         if need <= self.num_rows:
             return
-        self._append(*self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1))
+        x, v = self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1)
+        if self.vertices is not None:  # the simulated rows only (the trajectory evaluates every vertex)
+            x, v = x[:, self.vertices], v[:, self.vertices]
+        self._append(x, v)
 
 
 @dataclass
@@ -198,8 +210,10 @@ class FaceState:
         rows: each member's bake row at its window start, shape (B,), int32.
         chunks: slices of the batch, each with positions x [m] and velocities v [m/s], shape (b, N) vec3 float32,
             per-cluster rotations (b, S) mat33 and their quaternions (b, S) quat (the warm start of the iterative
-            rotation fit; identity at the window start), and centroids (b, S) vec3 [m] (S cluster slots).
+            rotation fit; identity at the window start), and centroids (b, S) vec3 [m] (S cluster slots); N here
+            is R, the simulated vertices of the model's region.
         tasks: (chunk index, part) pairs, one per thread, that make up one step.
+        trajectory: the trajectory the state started on (observe reads x_K there for vertices outside the region).
     """
 
     start_times: np.ndarray
@@ -208,6 +222,7 @@ class FaceState:
     chunks: list = field(default_factory=list)
     steps: int = 0
     tasks: list = field(default_factory=list)
+    trajectory: object = None
 
 
 class FaceSystem:
@@ -240,17 +255,25 @@ class FaceSystem:
         if kernels not in KERNEL_PATHS:
             raise KDInputError(f"kernels: expected one of {KERNEL_PATHS}, got {kernels!r}")
         self.kernels = kernels
-        c = model.clusters
+        region = model.region
+        self._region = None if region is None else np.asarray(region, dtype=np.int64)
+        self._num_sim = model.num_simulated
+        sim = slice(None) if region is None else self._region
+        c = model.clusters if region is None else Clusters.from_matrix(  # renumbered into the region: 0..R-1
+            sp.csr_matrix((np.ones(len(model.clusters.members), np.float32), model.clusters.members,
+                           model.clusters.offsets), shape=(model.clusters.num_clusters, model.num_vertices))[:, sim])
+        self._clusters = c
         d = self.device
         self._offsets = wp.array(c.offsets, dtype=wp.int32, device=d)
         self._members = wp.array(c.members, dtype=wp.int32, device=d)
         self._voff = wp.array(c.vertex_offsets, dtype=wp.int32, device=d)
         self._vcl = wp.array(c.vertex_clusters, dtype=wp.int32, device=d)
-        self._mass = wp.array(model.mass.astype(np.float32), dtype=float, device=d)
-        self._kp = wp.array(model.kp.astype(np.float32), dtype=float, device=d)
-        self._kd = wp.array(model.kd.astype(np.float32), dtype=float, device=d)
-        self._rigid = wp.array(model.rigid_mask.astype(np.int32), dtype=wp.int32, device=d)
-        self._voff_none = wp.zeros(model.num_vertices + 1, dtype=wp.int32, device=d)  # no goals when α = 0
+        self._mass = wp.array(model.mass[sim].astype(np.float32), dtype=float, device=d)
+        self._kp = wp.array(model.kp[sim].astype(np.float32), dtype=float, device=d)
+        self._kd = wp.array(model.kd[sim].astype(np.float32), dtype=float, device=d)
+        self._rigid_sim = model.rigid_mask[sim]
+        self._rigid = wp.array(self._rigid_sim.astype(np.int32), dtype=wp.int32, device=d)
+        self._voff_none = wp.zeros(self._num_sim + 1, dtype=wp.int32, device=d)  # no goals when α = 0
         self._partitions: dict[int, _Partition] = {}
         self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
         self._pending = None  # (trajectory, start times, (bake, rows)) from the last prepare
@@ -258,6 +281,11 @@ class FaceSystem:
         if self.threads > 1 and self.device.is_cpu:
             self._workers = Workers(self.threads - 1)
             weakref.finalize(self, self._workers.close)
+
+    @property
+    def num_simulated(self) -> int:
+        """R, the vertices one step advances (the model's region; the rest follow x_K)."""
+        return self._num_sim
 
     def close(self) -> None:
         """Stop the worker threads (they also stop when the system is garbage-collected)."""
@@ -285,28 +313,30 @@ class FaceSystem:
         origin = TrajectoryBake.grid_origin(trajectory, t0, h)
         j = TrajectoryBake.grid_index(trajectory, t0, h, origin)
         if j is None:
-            bake = TrajectoryBake(trajectory, h, self.device, member_times=t0)
+            bake = TrajectoryBake(trajectory, h, self.device, member_times=t0, vertices=self._region)
             return bake, np.arange(len(t0), dtype=np.int32)
         old = self._bake
         version = getattr(trajectory, "version", None)  # content, not identity: an edited correction is new content
         lo, hi = int(j.min()), int(j.max()) + steps + 1
-        row_bytes = 4 * 3 * 4 * self.model.num_vertices  # x_K, ẋ_K; device and host
+        row_bytes = 4 * 3 * 4 * self._num_sim  # x_K, ẋ_K of the region; device and host
         if (old is None or version is None or old.version != version or old.h != h
                 or abs(old.origin - origin) > _GRID_TOL * max(1.0, abs(origin))
                 or (max(hi, old.j_lo + old.num_rows) - min(lo, old.j_lo)) * row_bytes > self.max_bake_bytes):
             # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed)
-            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin)
+            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
+                                              vertices=self._region)
         elif lo < old.j_lo:
             self._bake = old = old.prepended(lo)
         return old, (j - old.j_lo).astype(np.int32)
 
     def memory_bytes(self, num_members: int, grid_rows: int) -> int:
         """Estimated memory [bytes] of a batch of ``num_members`` states reading ``grid_rows`` baked rows: per member
-        positions and velocities (N vec3) and per-cluster rotations, quaternions and centroids; per row x_K and ẋ_K
-        on the device and on the host."""
-        n, c = self.model.num_vertices, self.model.clusters.num_clusters
-        member = 2 * 12 * n + (36 + 16 + 12 + 12) * c + 8 * 3 * n  # + the float64 copy observe() returns
-        return int(num_members) * member + int(grid_rows) * 4 * 12 * n
+        positions and velocities (R vec3, the region) and per-cluster rotations, quaternions and centroids, and the
+        (N, 3) float64 every vertex that observe() returns; per row x_K and ẋ_K of the region on the device and on
+        the host."""
+        n, r, c = self.model.num_vertices, self._num_sim, self.model.clusters.num_clusters
+        member = 2 * 12 * r + (36 + 16 + 12 + 12) * c + 8 * 3 * n
+        return int(num_members) * member + int(grid_rows) * 4 * 12 * r
 
     def copy_state(self, state: FaceState) -> FaceState:
         """An independent copy of ``state`` (same bake, its own arrays)."""
@@ -317,7 +347,7 @@ class FaceSystem:
                   for ch in state.chunks]
         return FaceState(start_times=state.start_times.copy(), bake=state.bake,
                          rows=None if state.rows is None else state.rows.copy(), chunks=chunks, steps=state.steps,
-                         tasks=list(state.tasks))
+                         tasks=list(state.tasks), trajectory=state.trajectory)
 
     def initial_state(self, trajectory, times) -> FaceState:
         """States at ``times`` (B,) [s] on the kinematic trajectory: x = x_K(t), v = ẋ_K(t)."""
@@ -330,16 +360,19 @@ class FaceSystem:
         else:  # not prepared: bake on the first step, when h is known
             self._check_trajectory(trajectory)
             bake = rows = None
-            x0, v0 = (a.astype(np.float32) for a in trajectory.evaluate(t0, order=1))
+            x0, v0 = trajectory.evaluate(t0, order=1)
+            if self._region is not None:
+                x0, v0 = x0[:, self._region], v0[:, self._region]
+            x0, v0 = x0.astype(np.float32), v0.astype(np.float32)
         B = len(t0)
         fused = self.kernels == "fused"
         threads = self.threads if self._workers is not None else 1
         # one state and several threads: split its vertices; a batch: split its members
         parts = threads if (fused and B == 1 and threads > 1) else 1
         partition = self._partition(parts) if fused else None
-        slots = partition.slots if fused else self.model.clusters.num_clusters
+        slots = partition.slots if fused else self._clusters.num_clusters
         d = self.device
-        state = FaceState(start_times=t0, bake=bake, rows=rows)
+        state = FaceState(start_times=t0, bake=bake, rows=rows, trajectory=trajectory)
         for p in np.array_split(np.arange(B), min(threads if parts == 1 else 1, B)):
             x = wp.array(x0[p], dtype=wp.vec3, device=d)
             state.chunks.append(_Chunk(
@@ -401,7 +434,8 @@ class FaceSystem:
         its grid, so it takes no further regular steps."""
         if not (0.0 < h):
             raise KDInputError(f"step_s: expected a positive number of seconds, got {h}")
-        bake = TrajectoryBake(trajectory, h, self.device, member_times=np.broadcast_to(t, (len(state.start_times),)))
+        bake = TrajectoryBake(trajectory, h, self.device, member_times=np.broadcast_to(t, (len(state.start_times),)),
+                              vertices=self._region)
         bake.ensure(np.arange(bake.stride, dtype=np.int32), 1)
         tasks = []
         for k, part in state.tasks:
@@ -429,11 +463,20 @@ class FaceSystem:
         return np.asarray(trajectory.evaluate(np.atleast_1d(np.asarray(times, dtype=np.float64)), order=0)[0])
 
     def observe(self, state: FaceState) -> np.ndarray:
-        """Vertex positions of every member [m], shape (B, N, 3), float64. Rigid vertices are the trajectory's own
-        float64 positions at each member's time (they follow it exactly; the state holds them in float32)."""
+        """Vertex positions of every member [m], shape (B, N, 3), float64. Rigid vertices, and with a region every
+        vertex outside it, are the trajectory's own float64 positions at each member's time (they follow it
+        exactly; the state holds rigid ones in float32 and outside ones not at all), evaluated once here."""
         self._check(state)
         x = np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
-        rigid = self.model.rigid_mask
+        rigid = self._rigid_sim
+        if self._region is not None:
+            traj = state.bake.trajectory if state.bake is not None else state.trajectory
+            t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
+            full = np.empty((len(x), self.model.num_vertices, 3))
+            for i in range(0, len(t), 32):
+                full[i:i + 32] = scan_trajectory(traj, t[i:i + 32], 0)[0]
+            full[:, self._region[~rigid]] = x[:, ~rigid]
+            return full
         if rigid.any() and state.bake is not None:
             t = state.start_times + state.steps * state.bake.h
             for i in range(0, len(t), 32):
@@ -453,7 +496,7 @@ class FaceSystem:
             return self._partitions[parts]
         from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-        c = self.model.clusters
+        c = self._clusters
         n, nc = c.num_vertices, c.num_clusters
         if parts == 1:
             order = np.arange(n)
@@ -503,7 +546,7 @@ class FaceSystem:
     def _fused_inputs(self, ch: _Chunk, part: int, bake: TrajectoryBake, rows) -> list:
         """face_step's arguments for ``part`` of chunk ``ch`` reading ``bake`` at ``rows`` (row offsets 0)."""
         m, pa = self.model, ch.partition
-        alpha_on = m.shape_matching_alpha > 0 and m.clusters.num_clusters > 0
+        alpha_on = m.shape_matching_alpha > 0 and self._clusters.num_clusters > 0
         return [ch.x, ch.x_next, ch.v, bake.xk, bake.vk, rows, 0, 0, part,
                 pa.cluster_offsets if alpha_on else pa.no_cluster_offsets, pa.clusters, self._offsets,
                 self._members, self._mass, int(m.rotation == "iterative"), ROTATION_REGULARIZATION,
@@ -528,15 +571,15 @@ class FaceSystem:
         b = ch.x.shape[0]
         rows = ch.rows if rows is None else rows
         specs = []
-        if m.shape_matching_alpha > 0 and m.clusters.num_clusters:
-            specs.append((cluster_frames, (b, m.clusters.num_clusters),
+        if m.shape_matching_alpha > 0 and self._clusters.num_clusters:
+            specs.append((cluster_frames, (b, self._clusters.num_clusters),
                           [ch.x, bake.xk, rows, _OFF0, self._offsets, self._members, self._mass,
                            int(m.rotation == "iterative"), ROTATION_REGULARIZATION, m.rotation_iterations, ch.quat],
                           [ch.rot, ch.cen, ch.cen0]))
             voff = self._voff
         else:
             voff = self._voff_none
-        specs.append((track_step, (b, m.num_vertices),
+        specs.append((track_step, (b, self._num_sim),
                       [bake.xk, bake.vk, rows, _OFF0, _OFF1, voff, self._vcl, ch.rot, ch.cen, ch.cen0, self._kp,
                        self._kd, self._rigid, float(m.shape_matching_alpha), float(bake.h),
                        int(m.damping_mode == "relative")],

@@ -29,7 +29,8 @@ REORDERED_FRACTION = 0.25
 
 #: Metres per unit of each length unit a rig file may be written in.
 UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001}
-#: A head rig (the mesh's largest extent) is expected between these sizes [m].
+#: A head — a head rig, or the moving region (the face and head) of a full-body avatar — is expected to span between
+#: these sizes [m] (its largest bounding-box extent).
 PLAUSIBLE_HEAD_M = (0.05, 1.0)
 
 
@@ -37,9 +38,31 @@ class RigUnitsWarning(UserWarning):
     """A rig's size is implausible for a head in the stated unit (probably a unit mix-up)."""
 
 
+def _head_extent(rig: BlendshapeRig) -> tuple[float, str]:
+    """(largest bounding-box extent [m], what it measures) of the rig's moving region
+    (:func:`kdfaces.rig.region.region_mask`: the face and head of a full-body avatar), or of the whole mesh when
+    nothing in the rig can move or the region is every vertex."""
+    from .region import region_mask
+
+    v = rig.neutral
+    what = "the rig"
+    if (rig.num_shapes or rig.skeleton is not None) and len(v):
+        try:
+            mask = region_mask(rig)
+        except KDInputError:  # nothing moves: the whole mesh is all there is to measure
+            mask = None
+        if mask is not None and not mask.all():
+            v, what = v[mask], "its moving region (the face)"
+    if not len(v):
+        return 0.0, what
+    return float((v.max(axis=0) - v.min(axis=0)).max()), what
+
+
 def check_plausible_size(rig: BlendshapeRig, unit_m: float, where: str) -> None:
-    """Warn (:class:`RigUnitsWarning`) when the rig's extent is not head-sized in metres, naming the likely unit."""
-    extent = float((rig.neutral.max(axis=0) - rig.neutral.min(axis=0)).max())
+    """Warn (:class:`RigUnitsWarning`) when the rig's moving region (the face and head; a head rig's whole mesh) is
+    not head-sized in metres, naming the likely unit. A full-body avatar whose moving region is head-sized is
+    plausible: a 1.8 m body in centimetres whose face spans 0.3 m gets no warning."""
+    extent, what = _head_extent(rig)
     lo, hi = PLAUSIBLE_HEAD_M
     if lo <= extent <= hi:
         return
@@ -47,7 +70,7 @@ def check_plausible_size(rig: BlendshapeRig, unit_m: float, where: str) -> None:
     likely = [u for u, m in UNITS.items() if lo <= file_extent * m <= hi]
     hint = f"; the numbers fit a head in {likely[0]} (units = \"{likely[0]}\")" if likely else ""
     stated = next((u for u, m in UNITS.items() if abs(m - unit_m) < 1e-12), f"{unit_m:g} m per unit")
-    warnings.warn(f"{where}: read as {stated}, the rig is {extent:.3g} m across, not a head's "
+    warnings.warn(f"{where}: read as {stated}, {what} is {extent:.3g} m across, not a head's "
                   f"{lo:g}–{hi:g} m{hint}", RigUnitsWarning, stacklevel=4)
 
 

@@ -10,6 +10,10 @@ Outputs (all written atomically):
 - ``movie.mp4`` (GIF fallback) — the whole shot, panels side by side;
 - point caches of the final trajectory with ``--export usd|pc2``; ``summary.json``.
 
+Every picture frames the rig's moving region (:func:`~kdfaces.viz.figures.rig_focus`, computed once here): a
+full-body avatar is shown by its face, the heat maps' colour range is measured there, and a pose constraint's
+markers sit where the pose moves the face.
+
 :func:`render_shot` takes any object with the fields of ``kdfaces.shots.run.ShotRun`` (``shot``, ``times``,
 ``kinematic``, ``kd``, ``ikd``, ``ikd_result``, ``window_s``, ``system``), so it does not depend on how they were
 computed.
@@ -23,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..kd import simulate_kd
-from ..viz.figures import filmstrip, part_colors
+from ..viz.figures import filmstrip, part_colors, rig_focus
 from ..viz.heatmap import heatmap_strip
 from ..viz.markers import constraint_panel
 from ..viz.movie import render_movie
@@ -85,14 +89,15 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     stills = still_states(run, t)
     reference = run.kinematic[0]
     colors = part_colors(rig)
+    focus = rig_focus(rig)
     outputs = [filmstrip(out / "filmstrip.png", rig.faces, stills, t, reference=reference,
-                         title=f"{shot.name}: {' | '.join(stills)}", colors=colors)]
+                         title=f"{shot.name}: {' | '.join(stills)}", colors=colors, focus=focus)]
     outputs.append(heatmap_strip(out / "heatmap.png", rig.faces, {"KD": stills["KD"]}, stills["kinematic"], t,
-                                 title=f"{shot.name}: KD deviation from the kinematic pose"))
+                                 title=f"{shot.name}: KD deviation from the kinematic pose", focus=focus))
     if "IKD" in stills:  # its own colour range: the IKD edit is usually much larger than the follow-through
         outputs.append(heatmap_strip(out / "heatmap_ikd.png", rig.faces, {"IKD": stills["IKD"]},
                                      stills["kinematic"], t,
-                                     title=f"{shot.name}: IKD deviation from the kinematic pose"))
+                                     title=f"{shot.name}: IKD deviation from the kinematic pose", focus=focus))
     if constraints:
         panel_rows = {"KD (before)": _constraint_states(run, constraints, shot.trajectory),
                       "IKD (after)": _constraint_states(run, constraints, ikd_result.trajectory)}
@@ -100,7 +105,8 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
                                         reference=reference, title=f"{shot.name}\ntarget (green), reached (orange)",
                                         seam_ratios=ikd_result.seam_ratios(rig.faces),
                                         seam_bounds=ikd_result.seam_bounds(),
-                                        gradient_ratios=ikd_result.gradient_ratios()))
+                                        gradient_ratios=ikd_result.gradient_ratios(), focus=focus,
+                                        moved_from=shot.trajectory.positions([c.time_s for c in constraints])))
     rows = {"kinematic": run.kinematic, "KD": run.kd}
     if run.ikd is not None:
         rows["IKD"] = run.ikd
@@ -108,7 +114,8 @@ def render_shot(run, out, *, frames: int = 6, movie: bool = True, movie_format: 
     frame_s = []
     if movie:
         outputs.append(render_movie(out / "movie", rig.faces, rows, times, fps=fps, reference=reference,
-                                    progress=progress, format=movie_format, timings=frame_s, colors=colors))
+                                    progress=progress, format=movie_format, timings=frame_s, colors=colors,
+                                    focus=focus))
     final = run.ikd if run.ikd is not None else run.kd
     for kind in dict.fromkeys(exports):
         outputs.append(export_trajectory(out, final, times, kind=kind, rig=rig, fps=fps, name=shot.name,

@@ -3,6 +3,10 @@
 :class:`FaceRenderer` draws one triangle mesh at many vertex positions from a camera fixed by a reference pose:
 plain skin colour, per-vertex scalars through a colour map (heat maps), point markers (constraint targets), a
 corner label, or a binary silhouette mask (for image tests). :func:`filmstrip` lays renders out in a labelled grid.
+
+The camera frames a *focus*: the vertex indices of the rig's moving region (:func:`rig_focus`, paper §4.5: the face
+is the part that moves), so a full-body avatar is shown by its face while the whole mesh is still drawn. On a
+head-and-neck rig the region is every vertex and the framing is the whole mesh's.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from ..errors import KDInputError
 from ..io.atomic import atomic_path
 
 __all__ = ["SKIN", "FaceRenderer", "Markers", "filmstrip", "image_grid", "save_figure", "subplots", "check_positions",
-           "part_colors"]
+           "check_focus", "rig_focus", "framing", "part_colors"]
 
 #: The skin colour of plain renders.
 SKIN = "#d9a58a"
@@ -31,6 +35,39 @@ def check_positions(positions, num_vertices: int, what: str) -> np.ndarray:
     if not np.isfinite(x).all():
         raise KDInputError(f"{what}: vertex positions contain NaN or inf")
     return x
+
+
+def check_focus(focus, num_vertices: int, what: str = "focus") -> np.ndarray | None:
+    """``focus`` as sorted unique vertex indices (R,) int64 in [0, ``num_vertices``), or None for every vertex; a
+    boolean mask (N,) is accepted too. Anything else (empty, fractional, out of range) is one KDInputError."""
+    if focus is None:
+        return None
+    f = np.asarray(focus)
+    if f.dtype == bool:
+        if f.shape != (num_vertices,):
+            raise KDInputError(f"{what}: a vertex mask must have shape ({num_vertices},), got {f.shape}")
+        f = np.flatnonzero(f)
+    elif f.ndim != 1 or (f.dtype.kind not in "iu" and not (f.dtype.kind == "f" and np.all(f == np.round(f)))):
+        raise KDInputError(f"{what}: expected vertex indices (R,) or a vertex mask ({num_vertices},), got "
+                           f"{f.dtype} of shape {f.shape}")
+    f = np.unique(f.astype(np.int64))
+    if len(f) == 0:
+        raise KDInputError(f"{what}: no vertices; expected at least one vertex index")
+    if f[0] < 0 or f[-1] >= num_vertices:
+        raise KDInputError(f"{what}: vertex indices must lie in [0, {num_vertices}), got {f[0]}..{f[-1]}")
+    return f
+
+
+def rig_focus(rig) -> np.ndarray | None:
+    """The vertex indices (R,) int64 renders of ``rig`` frame and measure: its moving region
+    (:func:`kdfaces.rig.region.moving_region`), or None (every vertex) when the region is the whole rig or nothing
+    of the rig can move (no shapes, no skeleton). Compute it once per rig and pass it as ``focus=``."""
+    from ..rig.region import moving_region
+
+    if not rig.num_shapes and rig.skeleton is None:
+        return None
+    region = moving_region(rig)
+    return None if len(region) == rig.num_vertices else region
 
 
 @dataclass(frozen=True)
@@ -72,10 +109,13 @@ class FaceRenderer:
         color: skin colour of plain renders.
         view: direction from the face centre towards the camera (the face looks +z, y is up).
         colors: per-vertex RGB colours (N, 3) in [0, 1] of plain renders (e.g. :func:`part_colors`), or None.
+        focus: vertex indices (R,) whose bounding box at ``reference`` the camera frames (its focal point at the
+            box centre, its distance from the box diagonal), e.g. :func:`rig_focus`; None frames every vertex.
+            The whole mesh is drawn either way.
     """
 
     def __init__(self, faces: np.ndarray, reference: np.ndarray, *, size=(360, 420), color=SKIN,
-                 view=(0.35, 0.15, 1.0), colors: np.ndarray | None = None):
+                 view=(0.35, 0.15, 1.0), colors: np.ndarray | None = None, focus=None):
         import pyvista as pv
 
         pv.OFF_SCREEN = True
@@ -105,14 +145,11 @@ class FaceRenderer:
         self.actor = None
         self._label = None
         self._set_style(("plain",))
-        lo, hi = ref.min(axis=0), ref.max(axis=0)
-        center = 0.5 * (lo + hi)
-        radius = 0.5 * np.linalg.norm(hi - lo)
-        d = np.asarray(view, dtype=np.float64)
-        d /= np.linalg.norm(d)
+        self.focus = check_focus(focus, self.num_vertices)
+        center, position = framing(ref, self.focus, view, distance=3.2)
         cam = self.plotter.camera
         cam.focal_point = center
-        cam.position = center + 3.2 * radius * d
+        cam.position = position
         cam.up = (0.0, 1.0, 0.0)
         cam.view_angle = 30.0
         self.plotter.reset_camera_clipping_range()
@@ -194,6 +231,19 @@ class FaceRenderer:
         self.close()
 
 
+def framing(reference: np.ndarray, focus: np.ndarray | None, view, *, distance: float
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(focal point, camera position) (3,), (3,) [m] of a camera looking along −``view`` (3,) at the bounding box of
+    ``reference[focus]`` ((N, 3) [m]; ``focus`` None: every vertex) from ``distance`` × half its diagonal."""
+    ref = reference if focus is None else reference[focus]
+    lo, hi = ref.min(axis=0), ref.max(axis=0)
+    center = 0.5 * (lo + hi)
+    radius = 0.5 * np.linalg.norm(hi - lo)
+    d = np.asarray(view, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    return center, center + distance * radius * d
+
+
 def image_grid(images: dict[str, list[np.ndarray]], column_titles: list[str], *, title: str | None = None,
                colorbar: dict | None = None, captions: dict[str, list[str]] | None = None, cell_inches=(1.9, 2.25)):
     """A matplotlib figure: one row per label of ``images`` (each a list of RGB images), one column per title.
@@ -249,16 +299,17 @@ def save_figure(fig, path, *, dpi: int = 100) -> Path:
 
 
 def filmstrip(path, faces, rows: dict[str, np.ndarray], times, *, reference=None, title: str | None = None,
-              colors=None) -> Path:
+              colors=None, focus=None) -> Path:
     """A grid PNG: one row per label in ``rows`` (each (F, N, 3) [m]), one column per time in ``times`` [s];
-    ``colors`` (N, 3) colours the parts (see :func:`part_colors`)."""
+    ``colors`` (N, 3) colours the parts (see :func:`part_colors`); ``focus`` (R,) vertex indices the camera frames
+    (see :class:`FaceRenderer`, :func:`rig_focus`; None: every vertex)."""
     first = np.asarray(next(iter(rows.values())))
     ref = first[0] if reference is None else reference
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
     for label, frames in rows.items():
         if len(frames) != len(times):
             raise KDInputError(f"filmstrip row {label!r}: {len(frames)} frames for {len(times)} times")
-    with FaceRenderer(faces, ref, colors=colors) as renderer:
+    with FaceRenderer(faces, ref, colors=colors, focus=focus) as renderer:
         images = {label: [renderer.render(x) for x in frames] for label, frames in rows.items()}
     fig = image_grid(images, [f"t = {t:.2f} s" for t in times], title=title)
     return save_figure(fig, path)

@@ -2,6 +2,8 @@
 
 The usual pair is x = x_KD (or x_IKD) and x_ref = x_K: where and how much the dynamics move the face away from the
 animator's kinematic pose (follow-through, jiggle). One colour range is shared by every panel so panels compare.
+The colour range is measured on the rig's moving region (``focus``, :func:`~kdfaces.viz.figures.rig_focus`): on a
+full-body avatar the still body would otherwise pull the percentile to zero and saturate the face.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KDInputError
-from .figures import FaceRenderer, check_positions, image_grid, save_figure
+from .figures import FaceRenderer, check_focus, check_positions, image_grid, save_figure
 
 __all__ = ["HEAT_CMAP", "MIN_CLIM_MM", "deviation_mm", "heat_clim", "heatmap_strip"]
 
@@ -30,16 +32,21 @@ def deviation_mm(positions, reference) -> np.ndarray:
     return 1e3 * np.linalg.norm(x - r, axis=-1)
 
 
-def heat_clim(deviations_mm, *, percentile: float = 99.5) -> tuple[float, float]:
-    """Colour limits (0, hi) [mm]: the ``percentile`` of all deviations, at least :data:`MIN_CLIM_MM`."""
+def heat_clim(deviations_mm, *, percentile: float = 99.5, focus=None) -> tuple[float, float]:
+    """Colour limits (0, hi) [mm]: the ``percentile`` of the deviations ``deviations_mm`` (..., N) [mm] of the
+    vertices ``focus`` (R,) (None: every vertex; the last axis is the vertex axis), at least :data:`MIN_CLIM_MM`."""
     d = np.asarray(deviations_mm, dtype=np.float64)
+    if focus is not None:
+        if d.ndim < 1:
+            raise KDInputError(f"heat_clim: focus needs per-vertex deviations (..., N), got shape {d.shape}")
+        d = d[..., check_focus(focus, d.shape[-1])]
     hi = float(np.percentile(d, percentile)) if d.size else 0.0
     return 0.0, max(hi, MIN_CLIM_MM)
 
 
 def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarray, times, *,
                   clim_mm: tuple[float, float] | None = None, title: str | None = None, size=(360, 420),
-                  cell_inches=(1.9, 2.25)) -> Path:
+                  cell_inches=(1.9, 2.25), focus=None) -> Path:
     """A PNG grid of deviation heat maps with a colour bar in mm.
 
     Args:
@@ -48,8 +55,10 @@ def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarra
         rows: label → positions (F, N, 3) [m] at ``times``; each is coloured by its distance to ``reference``.
         reference: kinematic positions (F, N, 3) [m] at ``times`` (the same reference for every row).
         times: (F,) [s], the column titles.
-        clim_mm: colour limits [mm]; default :func:`heat_clim` over every panel.
+        clim_mm: colour limits [mm]; default :func:`heat_clim` over every panel, on the ``focus`` vertices.
         size: each render's (width, height) [px]; cell_inches: each panel's size in the figure [in] (100 dpi).
+        focus: vertex indices (R,) the camera frames and the colour range is measured on (the rig's moving region,
+            :func:`~kdfaces.viz.figures.rig_focus`); None: every vertex.
 
     The faces are drawn at the row's positions (the deviation is seen in place).
     """
@@ -58,8 +67,11 @@ def heatmap_strip(path, faces, rows: dict[str, np.ndarray], reference: np.ndarra
     if ref.ndim != 3 or len(ref) != len(times):
         raise KDInputError(f"heat map reference: expected ({len(times)}, N, 3) positions, got {ref.shape}")
     dev = {label: deviation_mm(x, ref) for label, x in rows.items()}
-    clim = heat_clim(np.concatenate([d.ravel() for d in dev.values()])) if clim_mm is None else clim_mm
-    with FaceRenderer(faces, ref[0], size=size) as renderer:
+    if clim_mm is None:
+        clim = heat_clim(np.concatenate([d.reshape(-1, d.shape[-1]) for d in dev.values()]), focus=focus)
+    else:
+        clim = clim_mm
+    with FaceRenderer(faces, ref[0], size=size, focus=focus) as renderer:
         images = {label: [renderer.render(x, d, clim=clim, cmap=HEAT_CMAP) for x, d in zip(rows[label], dev[label])]
                   for label in rows}
     maxima = {label: float(d.max()) for label, d in dev.items()}

@@ -120,7 +120,7 @@ def timeline_bar(width: int, fraction: float, marks=(), *, height: int = TIMELIN
 def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float, reference=None, size=(240, 280),
                  progress: bool | None = None, format: str | None = None, timings: list | None = None,
                  timeline=None, deviation_from: str | None = None, clim_mm: tuple[float, float] | None = None,
-                 colors=None) -> Path:
+                 colors=None, focus=None) -> Path:
     """A movie with one panel per label of ``rows`` (each (F, N, 3) [m] at ``times`` (F,) [s]), side by side.
 
     Each panel is labelled with its row label and the frame time. ``progress``: show a tqdm bar (default: when
@@ -128,8 +128,10 @@ def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float,
     part colours (N, 3) (see :func:`~kdfaces.viz.figures.part_colors`). ``timeline``: draw a progress bar under the
     panels (True, or a sequence of times [s] to tick on it, e.g. constraint times). ``deviation_from``: a row
     label; every other panel is coloured by its distance to that row in mm (heat map, colour range ``clim_mm``,
-    default :func:`~kdfaces.viz.heatmap.heat_clim` over the whole movie), written in its label. Returns the path
-    written (MP4, or GIF on fallback).
+    default :func:`~kdfaces.viz.heatmap.heat_clim` over the whole movie), written in its label. ``focus``: vertex
+    indices (R,) the camera frames and the default colour range is measured on (the rig's moving region,
+    :func:`~kdfaces.viz.figures.rig_focus`; None: every vertex). Returns the path written (MP4, or GIF on
+    fallback).
     """
     from tqdm import tqdm
 
@@ -151,15 +153,16 @@ def render_movie(path, faces, rows: dict[str, np.ndarray], times, *, fps: float,
         heat = {label: deviation_mm(x, arrays[deviation_from]) for label, x in arrays.items()
                 if label != deviation_from}
         if clim_mm is None:
-            clim_mm = heat_clim(np.concatenate([d.ravel() for d in heat.values()])) if heat else (0.0, 1.0)
+            clim_mm = (heat_clim(np.concatenate([d.reshape(-1, d.shape[-1]) for d in heat.values()]), focus=focus)
+                       if heat else (0.0, 1.0))
     marks = []
     if timeline is not None and timeline is not False and timeline is not True:
         marks = [float(t) for t in timeline]
     span = max(float(times[-1] - times[0]), 1e-300)
     frames = []
     # one renderer per style: switching a renderer between plain and coloured re-creates its mesh actor
-    with FaceRenderer(faces, ref, size=size, colors=colors) as plain, \
-            FaceRenderer(faces, ref, size=size) as coloured:
+    with FaceRenderer(faces, ref, size=size, colors=colors, focus=focus) as plain, \
+            FaceRenderer(faces, ref, size=size, focus=focus) as coloured:
         for k in tqdm(range(len(times)), desc="movie", unit="frame", disable=not show):
             t0 = time.perf_counter()
             panels = []

@@ -27,7 +27,7 @@ from .. import defaults
 from ..errors import KDInputError
 from ..io.atomic import atomic_path
 from ..kd import simulate_kd, window_steps
-from .figures import SKIN
+from .figures import SKIN, check_focus, framing, rig_focus
 from .markers import constraint_markers
 
 __all__ = ["MODES", "ShotViewer", "PlotterWindow", "with_width", "check_window_size", "check_view_arguments",
@@ -178,6 +178,8 @@ class ShotViewer(PlotterWindow):
         window_s: KD window δ [s], "auto" or "adaptive"; default the shot's ``window_s``.
         widgets: draw the sliders and the play button (they also appear in screenshots).
         threads: CPU threads per KD state (the face's vertices are split between them).
+        focus: vertex indices (R,) the initial camera frames and pose-constraint markers are kept to; None: the
+            rig's moving region (:func:`~kdfaces.viz.figures.rig_focus`, so a full-body avatar opens on its face).
 
     Attributes:
         frame: the displayed frame index into ``times``.
@@ -192,8 +194,9 @@ class ShotViewer(PlotterWindow):
     """
 
     def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | str | None = None,
-                 widgets: bool = True, device: str = "cpu", threads: int = defaults.THREADS):
+                 widgets: bool = True, device: str = "cpu", threads: int = defaults.THREADS, focus=None):
         self.shot = shot
+        self.focus = rig_focus(shot.rig) if focus is None else check_focus(focus, shot.rig.num_vertices)
         self.threads = int(threads)
         self.trajectory = shot.trajectory
         self.times = np.asarray(shot.animation.frame_times, dtype=np.float64)
@@ -391,15 +394,12 @@ class ShotViewer(PlotterWindow):
         self._wire_actor = pl.add_mesh(self.wire, style="wireframe", color="#3b6fb6", opacity=0.25, line_width=1)
         self._wire_actor.SetVisibility(False)
         self._marker_actors = []
-        ref = rig.neutral
-        lo, hi = ref.min(axis=0), ref.max(axis=0)
-        center, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-        d = np.array([0.35, 0.15, 1.0]) / np.linalg.norm([0.35, 0.15, 1.0])
+        center, position = framing(rig.neutral, self.focus, (0.35, 0.15, 1.0), distance=3.0)
         sliders = [("settle", self.set_settle_time, (0.05, 1.5), self.settle_time_s, "settle time [s]"),
                    ("zeta", self.set_damping_ratio, (0.05, 2.0), self.damping_ratio, "damping ratio"),
                    ("window", self.set_window, (self.step_s, max(2.0, self.window_s)), self.window_s, "window [s]"),
                    ("sigma", self.set_width, (0.05, 1.0), self.width_s, "correction width [s]")]
-        self._add_controls(center, center + 3.0 * radius * d, sliders, widgets=widgets, off_screen=off_screen)
+        self._add_controls(center, position, sliders, widgets=widgets, off_screen=off_screen)
         if not off_screen:
             pl.add_key_event("m", self.cycle_mode)
             pl.add_key_event("i", self.solve_ikd)
@@ -407,13 +407,15 @@ class ShotViewer(PlotterWindow):
             pl.add_key_event("w", lambda: self.show_kinematic(not self._wire_actor.GetVisibility()))
 
     def _constraint_markers(self, x: np.ndarray) -> list:
-        """Markers of the constraints at the displayed frame (within half a step of its time)."""
+        """Markers of the constraints at the displayed frame (within half a step of its time); a pose constraint's
+        on the focus vertices its target moves away from the kinematic pose at its time."""
         t = self.times[self.frame]
         out = []
         for c in self.constraints():
             if abs(c.time_s - t) <= 0.5 * self.step_s + 1e-9:
                 xp = self.state(max(self.frame - 1, 0)) if c.kind == "velocity" else None
-                out += constraint_markers(c, x, xp, step_s=self.step_s)
+                rest = self.trajectory.positions([c.time_s])[0] if c.kind == "pose" else None
+                out += constraint_markers(c, x, xp, step_s=self.step_s, focus=self.focus, moved_from=rest)
         return out
 
     def update(self) -> None:

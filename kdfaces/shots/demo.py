@@ -67,6 +67,7 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
         warnings.warn(f"run_demo: offset_grid is deprecated and ignored: {OFFSET_GRID_MOVED}", DeprecationWarning,
                       stacklevel=2)
     from ..kd import simulate_full
+    from ..viz.figures import rig_focus
     from ..viz.heatmap import deviation_mm, heat_clim, heatmap_strip
     from ..viz.kd_report import kd_error_report, write_kd_report
     from ..viz.movie import render_movie
@@ -91,11 +92,12 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
     paths = write_run_outputs(run, out, exports=exports, convergence_runs=runs, export_unit_m=export_unit_m)
     paths += list(write_kd_report(out, report))
     k = _largest_deviation_frame(run)
+    focus = rig_focus(shot.rig)  # the moving region: camera and colour range (a head-only rig: every vertex)
     t0 = time.perf_counter()
     paths.append(heatmap_strip(out / "heatmap.png", shot.rig.faces, {"KD": run.kd[[k]]}, run.kinematic[[k]],
                                run.times[[k]], title=f"{shot.name}: KD deviation from the kinematic pose\n"
                                                      f"at the frame of largest deviation", size=(400, 460),
-                               cell_inches=(4.0, 4.6)))
+                               cell_inches=(4.0, 4.6), focus=focus))
     heatmap_s = time.perf_counter() - t0
     movie_s = None
     if movie:
@@ -104,7 +106,7 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
                                                                   "IKD": run.ikd},
                                   run.times, fps=shot.animation.fps, reference=run.kinematic[0],
                                   timeline=[c.time_s for c in constraints], deviation_from="kinematic",
-                                  clim_mm=heat_clim(deviation_mm(run.kd, run.kinematic))))
+                                  clim_mm=heat_clim(deviation_mm(run.kd, run.kinematic), focus=focus), focus=focus))
         movie_s = time.perf_counter() - t0
     auto_row = windows.index(run.window_s)
     summary = {

@@ -7,7 +7,9 @@ sparse, or normalized integers (``KHR_mesh_quantization``). The world transform 
 instances the mesh is applied, so positions are in scene metres; glTF is y-up in metres like kdfaces, so no
 other conversion happens. Weight animation channels (``target.path == "weights"``) become a
 :class:`~kdfaces.motion.trajectory.FaceAnimation` with one :class:`~kdfaces.motion.trajectory.ShapeTrack` (LINEAR →
-``linear``, CUBICSPLINE → ``hermite``). Skins are not imported.
+``linear``, CUBICSPLINE → ``hermite``). A skin on the mesh's node (joints, inverse bind matrices,
+``JOINTS_0``/``WEIGHTS_0``) becomes the head-chain :class:`~kdfaces.rig.Skeleton`
+(:func:`~kdfaces.rig.skeleton.head_chain_skeleton`, as FBX skins do): rest pivots from the inverse bind matrices.
 
 Export: :func:`save_gltf` writes a rig (and optionally its weight animation, sampled per frame) as ``.gltf``
 (one JSON file with an embedded base64 buffer) or ``.glb``. glTF stores float32, so the neutral round-trips to
@@ -29,6 +31,7 @@ from ..motion.joints import SkeletonAnimation
 from ..motion.trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack
 from ..rig.blendshapes import BlendshapeRig
 from ..rig.names import canonical_name
+from ..rig.skeleton import head_chain_skeleton
 from .atomic import write_bytes_atomic
 from .obj import triangulate, vertex_normals
 from .pointcache import infer_fps
@@ -280,16 +283,76 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     names = _target_names(doc, m, k)
     name = m.name or doc.path.stem
     vertex_parts = np.concatenate(parts)
+    skin = _read_skin(doc, mesh_index, m, apply_node_transform=apply_node_transform)
     if source is None:
         uv_corners = None if uv is None else uv[f].reshape(-1, 2)
+        skeleton = None if skin is None else head_chain_skeleton(*skin, where=str(doc.path))
         return _rig(doc, x0, dx, f, names, name=name, uvs=uv_corners, part_names=part_names,
-                    vertex_parts=vertex_parts)
+                    vertex_parts=vertex_parts, skeleton=skeleton)
     n = int(source.max()) + 1  # merge the vertices split at UV seams back (written by save_gltf)
     neutral, deltas, vparts = np.zeros((n, 3)), np.zeros((k, n, 3)), np.zeros(n, dtype=np.int64)
     neutral[source], deltas[:, source], vparts[source] = x0, dx, vertex_parts
     uv_corners = None if uv is None else uv[f].reshape(-1, 2)
+    skeleton = None
+    if skin is not None:
+        w = np.zeros((n, skin[3].shape[1]))
+        w[source] = skin[3]
+        skeleton = head_chain_skeleton(*skin[:3], w, where=str(doc.path))
     return _rig(doc, neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
-                vertex_parts=vparts)
+                vertex_parts=vparts, skeleton=skeleton)
+
+
+def _read_skin(doc: _Document, mesh_index: int, m, *, apply_node_transform: bool):
+    """(joint names, parents (J,), bind pivots (J, 3) [m], weights (N, J)) of the skin on the first node instancing
+    the mesh, or None. Pivots are the inverse bind matrices' inverses' origins, in the mesh's space (moved by the
+    node's world transform when the vertices are); a joint's parent is its nearest ancestor among the joints."""
+    g = doc.gltf
+    node = next((i for i, n in enumerate(g.nodes or []) if n.mesh == mesh_index), None)
+    if node is None or g.nodes[node].skin is None:
+        return None
+    skin = doc._item("skins", g.nodes[node].skin, f"node {node} skin")
+    joints = list(skin.joints or [])
+    if not joints:
+        return None
+    for j in joints:
+        doc._item("nodes", j, "skin joints")
+    J = len(joints)
+    if skin.inverseBindMatrices is not None:
+        ibm = doc.floats(skin.inverseBindMatrices, 16, "skin inverseBindMatrices")
+        if len(ibm) != J:
+            raise KDInputError(f"{doc.path}: skin: {len(ibm)} inverse bind matrices for {J} joints")
+        pivots = np.stack([np.linalg.inv(b.reshape(4, 4).T)[:3, 3] for b in ibm])
+    else:
+        pivots = np.stack([_world_matrix(g, j)[:3, 3] for j in joints])
+    if apply_node_transform:
+        w = _world_matrix(g, node)
+        pivots = pivots @ w[:3, :3].T + w[:3, 3]
+    parent_node = {c: i for i, n in enumerate(g.nodes) for c in (n.children or [])}
+    index = {j: k for k, j in enumerate(joints)}
+    parents = np.full(J, -1, dtype=np.int64)
+    for k, j in enumerate(joints):
+        a, seen = parent_node.get(j), set()
+        while a is not None and a not in index and a not in seen:
+            seen.add(a)
+            a = parent_node.get(a)
+        parents[k] = index.get(a, -1) if a is not None else -1
+    weights = []
+    for pi, prim in enumerate(m.primitives):
+        n = len(doc.accessor(_attr(prim.attributes, "POSITION"), "POSITION"))
+        w = np.zeros((n, J))
+        for set_ in range(8):
+            ji, wi = _attr(prim.attributes, f"JOINTS_{set_}"), _attr(prim.attributes, f"WEIGHTS_{set_}")
+            if ji is None or wi is None:
+                break
+            jj = doc.accessor(ji, f"primitive {pi} JOINTS_{set_}").astype(np.int64)
+            ww = doc.floats(wi, 4, f"primitive {pi} WEIGHTS_{set_}")
+            if jj.shape != (n, 4) or len(ww) != n or (jj.size and (jj.min() < 0 or jj.max() >= J)):
+                raise KDInputError(f"{doc.path}: primitive {pi} JOINTS_{set_}: expected {n} VEC4 joint indices in "
+                                   f"[0, {J})")
+            np.add.at(w, (np.repeat(np.arange(n), 4), jj.reshape(-1)), ww.reshape(-1))
+        weights.append(w)
+    names = [str(g.nodes[j].name or f"joint{k}") for k, j in enumerate(joints)]
+    return names, parents, pivots, np.concatenate(weights)
 
 
 def _rig(doc: _Document, *args, **kwargs) -> BlendshapeRig:

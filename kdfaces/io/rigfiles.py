@@ -72,13 +72,15 @@ def load_default_rig() -> BlendshapeRig:
 @renamed_kwargs(scale="unit_m")
 def load_rig(spec, *, units: str | None = None, unit_m: float | None = None, cache_dir=None,
              unit_name: str = "unit_m") -> BlendshapeRig:
-    """Load a rig from ``"default"``, an ``.npz``, a glTF (``.gltf``/``.glb``), an OBJ folder, or a MakeHuman folder
+    """Load a rig from ``"default"``, an ``.npz``, a glTF (``.gltf``/``.glb``), an FBX 7.x (``.fbx``,
+    :func:`~kdfaces.io.fbx.load_fbx_rig`), an OBJ folder, or a MakeHuman folder
     (``base.obj`` + ``*.target``), converting its ``units`` (or ``unit_m``, metres per file unit, as in
     :func:`save_obj_folder`; its old name ``scale`` still works for one release) to metres. ``unit_name``: what
     errors call ``unit_m`` (a shot file passes its ``rig.scale``).
 
     Defaults: npz and glTF files are in metres (the glTF standard), OBJ folders in metres, MakeHuman in
-    decimetres. An OBJ folder is parsed once per content: with ``cache_dir`` the parsed rig is kept there as an
+    decimetres, FBX in the unit its file states (``UnitScaleFactor``), which ``units``/``unit_m`` override.
+    An OBJ folder is parsed once per content: with ``cache_dir`` the parsed rig is kept there as an
     npz named by the hash of the folder's files and the unit.
     """
     if spec is None or str(spec) == "default":
@@ -96,6 +98,13 @@ def load_rig(spec, *, units: str | None = None, unit_m: float | None = None, cac
         unit_m = unit_scale(units, unit_m, where=str(p), name=unit_name)
         rig = load_gltf_rig(p)
         rig = rig if unit_m == 1.0 else _rescaled(rig, unit_m)
+    elif p.is_file() and p.suffix.lower() == ".fbx":
+        from .fbx import load_fbx_rig
+
+        # the file says its unit (UnitScaleFactor); units/unit_m override it only when given
+        given = None if units is None and unit_m is None else unit_scale(units, unit_m, where=str(p), name=unit_name)
+        rig = load_fbx_rig(p, unit_m=given)
+        unit_m = rig.source_unit_m
     elif p.is_dir():
         if list(p.glob("*.target")) or list(p.glob("targets/*.target")):
             unit_m = unit_scale(units, unit_m, default=MAKEHUMAN_UNIT_M, where=str(p), name=unit_name)
@@ -104,8 +113,8 @@ def load_rig(spec, *, units: str | None = None, unit_m: float | None = None, cac
             unit_m = unit_scale(units, unit_m, where=str(p), name=unit_name)
             rig = load_obj_folder(p, unit_m=unit_m, cache_dir=cache_dir)
     else:
-        raise KDInputError(f"{p}: expected an .npz or glTF rig, an OBJ folder or a MakeHuman folder (base.obj + "
-                           ".target files)")
+        raise KDInputError(f"{p}: expected an .npz, glTF or FBX rig, an OBJ folder or a MakeHuman folder (base.obj "
+                           "+ .target files)")
     check_plausible_size(rig, unit_m, str(p))
     return rig
 
@@ -119,7 +128,8 @@ def _rescaled(rig: BlendshapeRig, unit_m: float) -> BlendshapeRig:
     return BlendshapeRig.create(rig.neutral * unit_m, rig.deltas.astype(np.float64) * unit_m, rig.faces,
                                 rig.shape_names, skeleton=skel, name=rig.name, polygons=rig.polygons, uvs=rig.uvs,
                                 part_names=rig.part_names, vertex_parts=rig.vertex_parts,
-                                source_unit_m=rig.source_unit_m * unit_m, check_units=False)
+                                source_unit_m=rig.source_unit_m * unit_m, check_units=False,
+                                inbetweens=rig.inbetweens)
 
 
 def load_npz(path) -> BlendshapeRig:

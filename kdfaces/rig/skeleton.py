@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import KDInputError, check_finite
 
-__all__ = ["Skeleton", "HEAD_CHAIN_SPLIT", "joint_transforms", "skin"]
+__all__ = ["Skeleton", "HEAD_CHAIN_SPLIT", "joint_transforms", "skin", "head_chain_skeleton", "joint_role"]
 
 @dataclass(frozen=True)
 class Skeleton:
@@ -61,6 +61,124 @@ class Skeleton:
 HEAD_CHAIN_SPLIT = {"neck01": 0.15, "neck02": 0.15, "neck03": 0.2, "head": 0.5}
 
 _AXES = (1, 0, 2)  # yaw about y, pitch about x, roll about z
+
+
+def joint_role(name: str) -> str | None:
+    """``"head"``, ``"neck"``, ``"jaw"`` or None for a file's joint name, case-insensitive, after any namespace
+    (``mixamorig:Head``, ``rig|neck_01``): the last word is ``head``, or a word starts with ``neck`` / ``jaw``
+    (``Neck1``, ``CC_Base_NeckTwist01``, ``jaw_M``). ``HeadTop_End`` and ``forehead`` are none of them."""
+    import re
+
+    base = re.split(r"[:|]", str(name))[-1].lower()
+    words = [w for w in re.split(r"[^a-z0-9]+", re.sub(r"(?<=[a-z])(?=[0-9])", " ", base)) if w]
+    if not words:
+        return None
+    if words[-1] == "head" or (len(words) >= 2 and words[-2] == "head" and words[-1].isdigit()):
+        return "head"
+    if any(w.startswith("neck") for w in words):
+        return "neck"
+    if any(w.startswith("jaw") for w in words):
+        return "jaw"
+    return None
+
+
+def head_chain_skeleton(names, parents, positions, weights, *, where: str = "skeleton") -> Skeleton | None:
+    """The toolkit's head chain (neck01, neck02, neck03, …, head, jaw) from a file's full skeleton, or None when it
+    has no head joint.
+
+    Args:
+        names: the file's J joint names.
+        parents: parent index of each joint (-1 for a root), (J,) ints; any order (parents need not come first).
+        positions: rest (bind) pivot of each joint [m], (J, 3).
+        weights: skin weight of each vertex on each joint, (N, J); rows sum to at most 1 (more is normalised).
+        where: names the file in errors.
+
+    The head is the joint :func:`joint_role` calls ``head`` (two are an error naming them); its ancestors called
+    ``neck…`` become neck01, neck02, … from the root down; the first descendant called ``jaw…`` becomes ``jaw``.
+    Weights of joints below the head (face joints: eyes, lips, tongue) go to the head, those below the jaw to the
+    jaw; the rest (spine, arms, legs) is dropped: that weight belongs to the fixed body. With fewer than three neck
+    joints, zero-weight joints are added on the segment from the last neck joint (or the head's parent, or the head
+    itself) to the head, evenly, so that :data:`HEAD_CHAIN_SPLIT` applies unchanged.
+    """
+    names = [str(n) for n in names]
+    parents = np.asarray(parents, dtype=np.int64)
+    positions = np.asarray(positions, dtype=np.float64)
+    W = np.asarray(weights, dtype=np.float64)
+    J = len(names)
+    if parents.shape != (J,) or positions.shape != (J, 3) or W.ndim != 2 or W.shape[1] != J:
+        raise KDInputError(f"{where}: expected parents ({J},), positions ({J}, 3) and weights (N, {J}); got "
+                           f"{parents.shape}, {positions.shape}, {W.shape}")
+    roles = [joint_role(n) for n in names]
+    heads = [j for j in range(J) if roles[j] == "head"]
+    if not heads:
+        return None
+    if len(heads) > 1:
+        # a head joint below another one (a head's end or helper joint) belongs to the upper head
+        def ancestors(j):
+            out = []
+            while parents[j] >= 0 and len(out) <= J:
+                j = int(parents[j])
+                out.append(j)
+            return out
+        top = [h for h in heads if not any(a in heads for a in ancestors(h))]
+        if len(top) > 1:
+            raise KDInputError(f"{where}: {len(top)} head joints {[names[h] for h in top]}; expected one (the "
+                               "head chain is found by joint names: neck…, head, jaw)")
+        heads = top
+    head = heads[0]
+    chain, j = [], int(parents[head])
+    while j >= 0 and len(chain) <= J:
+        chain.append(j)
+        j = int(parents[j])
+    necks = [j for j in reversed(chain) if roles[j] == "neck"]
+    children = [[] for _ in range(J)]
+    for k in range(J):
+        if parents[k] >= 0:
+            children[int(parents[k])].append(k)
+    # the jaw: the first jaw joint met walking the head's subtree breadth first
+    jaw, queue, below_head = None, list(children[head]), []
+    while queue:
+        k = queue.pop(0)
+        below_head.append(k)
+        if jaw is None and roles[k] == "jaw":
+            jaw = k
+        queue.extend(children[k])
+    below_jaw = set()
+    if jaw is not None:
+        stack = [jaw]
+        while stack:
+            k = stack.pop()
+            below_jaw.add(k)
+            stack.extend(children[k])
+    n_neck = max(3, len(necks))
+    out_names = [f"neck{i + 1:02d}" for i in range(n_neck)] + ["head"] + (["jaw"] if jaw is not None else [])
+    M = np.zeros((J, len(out_names)))  # file joint → toolkit joint
+    for i, j in enumerate(necks):
+        M[j, i] = 1.0
+    M[head, n_neck] = 1.0
+    for k in below_head:
+        M[k, n_neck + 1 if k in below_jaw else n_neck] = 1.0
+    pos = np.zeros((len(out_names), 3))
+    pos[:len(necks)] = positions[necks]
+    pos[n_neck] = positions[head]
+    if jaw is not None:
+        pos[n_neck + 1] = positions[jaw]
+    missing = n_neck - len(necks)
+    if missing:
+        start = positions[necks[-1]] if necks else positions[chain[0]] if chain else positions[head]
+        # evenly on [start, head]: after the file's necks (which keep their own pivots), before the head
+        first = 1 if necks else 0
+        steps = np.arange(first, first + missing) / (missing + first)
+        pos[len(necks):n_neck] = start + steps[:, None] * (positions[head] - start)
+    out_w = W @ M
+    total = out_w.sum(axis=1)
+    over = total > 1.0
+    if over.any():
+        out_w[over] /= total[over, None]
+    return Skeleton(names=tuple(out_names), positions=pos,
+                    parents=np.arange(-1, len(out_names) - 1, dtype=np.int64) if jaw is None else
+                    np.concatenate([np.arange(-1, n_neck, dtype=np.int64), [n_neck]]),
+                    weights=np.clip(out_w, 0.0, None))
 
 
 def _axis_rotation(axis: int, th, dth, ddth):

@@ -255,7 +255,7 @@ class KinematicTrajectory:
             vals = curve.evaluate(t, order)
             for o in range(order + 1):
                 np.add.at(out[o], (slice(None), shape), vals[o][:, channel])
-        return tuple(out)
+        return self.rig.expand_weights(out)  # channel → target weights through in-betweens (identity without)
 
     def evaluate(self, times, order: int = 2):
         """x_K, ẋ_K, ẍ_K at ``times`` (T,) → ``order + 1`` arrays of shape (T, N, 3), float64.

@@ -155,6 +155,12 @@ class BlendshapeRig:
         vertex_parts: part index of each vertex, shape (N,), int64 (-1: none), or None.
         source_unit_m: metres per unit of the file it was loaded from (1 for metres, 0.01 for centimetres): exports
             can write the rig's own unit back.
+        inbetweens: channels with in-between targets (FBX/Maya), each ``(channel row, target rows, full weights)``:
+            the channel's weight c is the weight column of ``channel row``; its targets (rows of ``deltas``, each a
+            full offset from the neutral, the channel row among them) are reached at the strictly increasing
+            ``full weights`` f_1 < … < f_n (f_n usually 1) and blended piecewise linearly in c between them (0 at
+            c = 0, extrapolated along the first and last segments), as DCCs do (:meth:`expand_weights`). Empty
+            (the default): the rig is linear in its weights.
     """
 
     neutral: np.ndarray
@@ -168,6 +174,7 @@ class BlendshapeRig:
     part_names: tuple[str, ...] = ()
     vertex_parts: np.ndarray | None = None
     source_unit_m: float = 1.0
+    inbetweens: tuple = ()
     _flat: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -207,8 +214,72 @@ class BlendshapeRig:
                                    f"[-1, {len(self.part_names)})")
         if not (np.isfinite(self.source_unit_m) and self.source_unit_m > 0):
             raise KDInputError(f"rig {self.name!r} source_unit_m: expected a positive number of metres per unit")
+        self._check_inbetweens()
         self._check_surface()
         object.__setattr__(self, "_flat", self.deltas.reshape(len(self.deltas), 3 * len(n)).astype(np.float64))
+
+    def _check_inbetweens(self) -> None:
+        """Each in-between channel: its rows are shapes of the rig (the channel row among them, no row in two
+        channels) and its full weights strictly increase from above 0."""
+        seen: set[int] = set()
+        for entry in self.inbetweens:
+            channel, rows, full = entry
+            rows, full = list(rows), np.asarray(full, dtype=np.float64)
+            where = f"rig {self.name!r} inbetweens"
+            if not rows or len(rows) != len(full) or any(not 0 <= r < self.num_shapes for r in rows) or \
+                    channel not in rows:
+                raise KDInputError(f"{where}: expected (channel row, target rows, full weights) with one full weight "
+                                   f"per target, rows in [0, {self.num_shapes}) and the channel row among them; got "
+                                   f"{entry!r}")
+            if not (np.isfinite(full).all() and full[0] > 0 and (np.diff(full) > 0).all()):
+                raise KDInputError(f"{where}: channel {self.shape_names[channel]!r}: full weights {full.tolist()}; "
+                                   "expected strictly increasing weights above 0")
+            if seen & set(rows):
+                raise KDInputError(f"{where}: shape {self.shape_names[sorted(seen & set(rows))[0]]!r} is a target "
+                                   "of two channels")
+            seen |= set(rows)
+
+    def expand_weights(self, weights):
+        """Target weights from channel weights through the in-betweens: ``weights`` is (w, ẇ, ẅ) or a prefix of it,
+        each (T, K); returns a tuple of the same length.
+
+        For a channel with full weights f_1 < … < f_n (f_0 = 0, the neutral) and channel weight c in segment
+        [f_(s−1), f_s] (the first or last segment outside [0, f_n]): t = (c − f_(s−1)) / (f_s − f_(s−1)), target s
+        gets φ_s = t, target s − 1 gets φ_(s−1) = 1 − t, the rest 0 — piecewise-linear interpolation of the
+        targets. φ is piecewise linear, so φ'' = 0 inside segments and the derivatives are exact there: ẇ_target =
+        φ'(c) ċ, ẅ_target = φ'(c) c̈ (φ' = ±1/(f_s − f_(s−1))). Columns of in-between rows add their own weights;
+        rows of no channel pass through. A rig without in-betweens returns ``weights`` unchanged.
+        """
+        weights = tuple(weights)
+        if not self.inbetweens:
+            return weights
+        out = [np.array(w, dtype=np.float64, copy=True) for w in weights]
+        w = out[0]
+        for channel, rows, full in self.inbetweens:
+            rows = np.asarray(rows, dtype=np.int64)
+            knots = np.concatenate([[0.0], np.asarray(full, dtype=np.float64)])
+            c = w[:, channel].copy()
+            derivs = [o[:, channel].copy() for o in out[1:]]
+            for o in out:
+                o[:, channel] = 0.0
+            seg = np.clip(np.searchsorted(knots, c, side="left"), 1, len(rows))  # segment [f_(s-1), f_s]
+            width = knots[seg] - knots[seg - 1]
+            t = (c - knots[seg - 1]) / width
+            idx = np.arange(len(c))
+            np.add.at(w, (idx, rows[seg - 1]), t)
+            lower = seg >= 2
+            np.add.at(w, (idx[lower], rows[seg[lower] - 2]), 1.0 - t[lower])
+            for o, dc in zip(out[1:], derivs):
+                np.add.at(o, (idx, rows[seg - 1]), dc / width)
+                np.add.at(o, (idx[lower], rows[seg[lower] - 2]), -dc[lower] / width[lower])
+        return tuple(out)
+
+    def blend_channels(self, weights) -> np.ndarray:
+        """:meth:`blend` of channel weights (K,) or (T, K) through the in-betweens (:meth:`expand_weights`)."""
+        w = np.asarray(weights, dtype=np.float64)
+        single = w.ndim == 1
+        x = self.blend(self.expand_weights((np.atleast_2d(w),))[0])
+        return x[0] if single else x
 
     def _check_surface(self) -> None:
         """A rig must be a surface: at least 3 vertices, a triangle, not every triangle of zero area, and shapes
@@ -227,8 +298,8 @@ class BlendshapeRig:
 
     @classmethod
     def create(cls, neutral, deltas, faces, shape_names, *, skeleton=None, name="rig", polygons=None, uvs=None,
-               part_names=(), vertex_parts=None, source_unit_m: float = 1.0, check_units: bool = True
-               ) -> BlendshapeRig:
+               part_names=(), vertex_parts=None, source_unit_m: float = 1.0, check_units: bool = True,
+               inbetweens=()) -> BlendshapeRig:
         """Build a rig converting arrays to the dtype contract (float64 positions, float32 deltas, int64 faces).
 
         ``neutral`` (N, 3) [m], ``deltas`` (K, N, 3) [m], ``faces`` (F, 3) whole-number indices (float indices
@@ -255,6 +326,8 @@ class BlendshapeRig:
             part_names=tuple(str(p) for p in part_names),
             vertex_parts=None if vertex_parts is None else np.ascontiguousarray(vertex_parts, dtype=np.int64),
             source_unit_m=float(source_unit_m),
+            inbetweens=tuple((int(c), tuple(int(r) for r in rows), tuple(float(f) for f in full))
+                             for c, rows, full in inbetweens),
         )
         if check_units:
             check_plausible_size(rig, 1.0, f"rig {name!r}")

@@ -159,7 +159,8 @@ def _write(tmp_path, doc, name="tri.gltf"):
 
 def test_minimal_handbuilt_file(tmp_path):
     rig, anim = load_gltf(_write(tmp_path, _minimal_gltf()))
-    assert rig.shape_names == ("jawOpen", "smile") and rig.num_vertices == 3
+    assert rig.shape_names == ("jaw_open", "smile") and rig.num_vertices == 3  # the file's own names
+    assert rig.shape_indices(["jawOpen"]) == [0]  # found by their ARKit spelling
     np.testing.assert_array_equal(rig.neutral, NEUTRAL + NODE_T)  # node chain: (0, 1, 0) + (0, 0.5, 0)
     np.testing.assert_array_equal(rig.deltas[0], JAW)  # translations do not move deltas
     expected_smile = np.zeros((3, 3), np.float32)

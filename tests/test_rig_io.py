@@ -67,7 +67,7 @@ def test_makehuman_loader_converts_decimetres(tmp_path):
     (d / "targets" / "jaw_open.target").write_text("# sparse\n2 0 -0.5 0.25\n")
     rig = load_rig(d)
     np.testing.assert_allclose(rig.neutral[2], [0, 1.1, 0])
-    assert rig.shape_names == ("jawOpen",)
+    assert rig.shape_names == ("jaw_open",) and rig.shape_indices(["jawOpen"]) == [0]  # own name, ARKit lookup
     np.testing.assert_allclose(rig.deltas[0, 2], [0, -0.05, 0.025], rtol=1e-6)
     assert not rig.deltas[0, :2].any()
 

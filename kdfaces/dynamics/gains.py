@@ -70,21 +70,21 @@ def _smooth(values: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarra
 
 
 def soft_tissue_settle_map(rig, *, stiff_s: float, loose_s: float, shapes=SOFT_TISSUE_SHAPES,
-                           smoothing: int = 4) -> np.ndarray:
+                           smoothing: int = 4, channel_map: dict | None = None) -> np.ndarray:
     """Per-vertex settle times (N,) [s]: ``stiff_s`` over bone (forehead, nose bridge, skull), ``loose_s`` in
     cheeks and lips.
 
     Softness s ∈ [0, 1] is the largest displacement of each vertex over the mouth/cheek shapes ``shapes`` (those
-    the rig has, matched by name or ARKit alias; a rig with none of them is a :class:`KDInputError`), divided by
-    its 95th percentile and clipped, then smoothed over the mesh; brow shapes are left out so the forehead stays
-    stiff. Settle time = stiff_s + (loose_s − stiff_s)·s.
+    the rig has, found as capture channels find them, by canonical name, side-split pair or ``channel_map`` — a
+    shot's ``[animation.map]`` — see :func:`kdfaces.rig.names.find_shapes`; a rig with none of them is a
+    :class:`KDInputError`), divided by its 95th percentile and clipped, then smoothed over the mesh; brow shapes are
+    left out so the forehead stays stiff. Settle time = stiff_s + (loose_s − stiff_s)·s.
     """
     if not (stiff_s > 0 and loose_s > 0):
         raise KDInputError(f"settle_time map: expected positive seconds, got stiff {stiff_s}, loose {loose_s}")
-    from ..rig.names import alias_key, canonical_name
+    from ..rig.names import find_shapes
 
-    have = {alias_key(canonical_name(n)): i for i, n in enumerate(rig.shape_names)}
-    idx = [have[alias_key(canonical_name(str(s)))] for s in shapes if alias_key(canonical_name(str(s))) in have]
+    idx = find_shapes(shapes, rig.shape_names, channel_map=channel_map, where="settle_time map")
     if not idx:  # a map of one value would silently make the whole face stiff
         shown = ", ".join(list(shapes)[:4]) + (", …" if len(shapes) > 4 else "")
         raise KDInputError(f"settle_time map: rig {getattr(rig, 'name', 'rig')!r} has none of the soft-tissue shapes "

@@ -22,7 +22,8 @@ from ..rig.skeleton import joint_transforms, skin
 from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
 
-__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning", "scan_trajectory"]
+__all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning", "scan_trajectory",
+           "MIN_MAPPED_SHARE"]
 
 
 def scan_trajectory(trajectory, times, order: int = 2):
@@ -104,6 +105,25 @@ class FaceAnimation:
 FaceAnimation.__init__ = renamed_kwargs(start="start_s", end="end_s")(FaceAnimation.__init__)
 
 
+#: A capture whose mapped channels are fewer than this share of the channels that move in it is an error (its face
+#: would hardly move): not a tunable, the line between "a rig lacking a few shapes" and "a rig the take misses".
+MIN_MAPPED_SHARE = 0.5
+
+
+def _how_to_map(rig, unmapped, used=()) -> str:
+    """How to map the first of ``unmapped`` channels onto ``rig``: an ``[animation.map]`` line with the rig's
+    closest shape among those no channel drives (``used``: indices of the driven shapes)."""
+    from ..rig.names import closest_shapes
+
+    channel = unmapped[0] if unmapped else "jawOpen"
+    free = [s for i, s in enumerate(rig.shape_names) if i not in set(used)] or list(rig.shape_names)
+    close = closest_shapes(channel, free, n=1)
+    example = close[0] if close else (free[0] if free else "<shape>")
+    return (f"map them in the shot's [animation.map], channel = the rig's shape(s) (e.g. {channel} = {example!r}), "
+            "or name the rig's shapes after the channels (ARKit names or aliases such as AK_25_JawOpen, "
+            "Mouth_Smile_L)")
+
+
 class UnmappedChannelsWarning(UserWarning):
     """Animation channels that drive no shape of the rig (skipped; ``strict`` makes them an error)."""
 
@@ -116,9 +136,12 @@ class KinematicTrajectory:
     Each channel of the animation drives the rig's shapes as :func:`kdfaces.rig.names.resolve_channels` says: a
     ``channel_map`` entry, the shape of that name, or both halves of a side-split shape (``browInnerUp`` drives
     ``browInnerUp_L`` and ``browInnerUp_R``). Channels left over are an error when ``strict`` (default: the
-    animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them; shapes no
-    channel drives stay at 0. An animation with channels none of which drives a shape (every one skipped or dropped)
-    is a :class:`~kdfaces.errors.KDInputError` either way: its face would not move. ``channel_map`` keys that are no
+    animation's ``strict_channels``), else skipped with one :class:`UnmappedChannelsWarning` listing them — unless
+    fewer than :data:`MIN_MAPPED_SHARE` of the channels that move drive a shape, which is a
+    :class:`~kdfaces.errors.KDInputError` naming the first unmapped ones (a capture that maps nothing useful would
+    give a frozen face); shapes no channel drives stay at 0. An animation with channels none of which drives a
+    shape (every one skipped or dropped) is a :class:`~kdfaces.errors.KDInputError` either way: its face would not
+    move. ``channel_map`` keys that are no
     channel of any track are an error too. ``where`` names the animation in errors (default ``animation 'NAME'``;
     a shot file passes ``FILE: animation``). ``cache_bytes`` bounds the memory of evaluated samples kept for re-use.
     ``joints``, a joint-angle trajectory of the rig's skeleton (e.g. the KD head of
@@ -165,11 +188,11 @@ class KinematicTrajectory:
                 raise KDInputError(f"{where}.map: every one of the {len(channels)} channels is dropped (false), so "
                                    "the face would not move; expected at least one channel mapped to a shape of rig "
                                    f"{rig.name!r}")
-            example = rig.shape_names[0] if rig.shape_names else "<shape>"
             raise KDInputError(f"{where}: rig {rig.name!r} has no shape for any of the {len(channels)} channels "
                                f"({', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}), so the face would "
-                               f"not move; add [animation.map] entries, channel = rig shape(s) (e.g. "
-                               f"{channels[0]} = {example!r}), or name the rig's shapes after the channels")
+                               f"not move; {_how_to_map(rig, skipped)}")
+        if skipped and not strict:
+            self._check_mapped_share(rig, animation, where)
         if skipped:
             warnings.warn(f"{where}: rig {rig.name!r} has no shape for channel(s) {', '.join(skipped)}; they are "
                           "skipped (map them in [animation.map], or set strict = true to make this an error)",
@@ -190,6 +213,25 @@ class KinematicTrajectory:
                 raise KDInputError(f"joints: expected a joint-angle trajectory of rig {rig.name!r}'s skeleton")
             self._joints = joints
         self._joint_override = joints is not None
+
+    def _check_mapped_share(self, rig, animation, where: str) -> None:
+        """A capture that maps nothing useful is an error: fewer than half of the channels that move in the take
+        (non-constant curves; channels the map drops are not counted) drive a shape of the rig."""
+        moving, unmapped = 0, []
+        for t in animation.tracks:
+            for name, still in zip(t.names, t.curve.constant_channels()):
+                how = self.channel_resolution.get(name)
+                if still or how == "dropped":
+                    continue
+                moving += 1
+                if how == "skipped":
+                    unmapped.append(str(name))
+        mapped = moving - len(unmapped)
+        if moving and mapped < MIN_MAPPED_SHARE * moving:
+            raise KDInputError(f"{where}: rig {rig.name!r} has a shape for only {mapped} of the {moving} channels that "
+                               f"move in the take, fewer than {MIN_MAPPED_SHARE:.0%}; unmapped: "
+                               f"{', '.join(unmapped[:4])}{', ...' if len(unmapped) > 4 else ''}; "
+                               f"{_how_to_map(rig, unmapped, {int(i) for _, sh, _ in self._tracks for i in sh})}")
 
     def moves(self) -> bool:
         """Whether x_K changes over time: a channel that drives a shape of the rig varies, the joints are driven

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import KDInputError, check_finite
-from .names import canonical_name, match_names
+from .names import match_names
 from .skeleton import Skeleton
 
 __all__ = ["BlendshapeRig", "surface_problem", "reordered_shapes", "STRETCH_FACTOR", "REORDERED_FRACTION", "UNITS",
@@ -144,7 +144,8 @@ class BlendshapeRig:
         neutral: rest vertex positions [m], shape (N, 3), float64.
         deltas: per-shape vertex offsets [m], shape (K, N, 3), float32.
         faces: triangle vertex indices, shape (F, 3), int64.
-        shape_names: K names, ARKit spelling where the shape is an ARKit shape.
+        shape_names: K names, as the rig file spells them (``AK_25_JawOpen``); every lookup by name goes through
+            :mod:`kdfaces.rig.names` (exact name, else the one shape with that ARKit alias key).
         skeleton: optional neck/head joints and skin weights.
         name: a label for reports.
         polygons: the source mesh's polygons as (counts (P,), corner vertex indices (Σ counts,)), int64, or None
@@ -318,7 +319,7 @@ class BlendshapeRig:
             neutral=np.ascontiguousarray(neutral, dtype=np.float64),
             deltas=np.ascontiguousarray(deltas, dtype=np.float32),
             faces=np.ascontiguousarray(faces, dtype=np.int64),
-            shape_names=tuple(canonical_name(str(s)) for s in shape_names),
+            shape_names=tuple(str(s) for s in shape_names),  # the rig's own names; lookups canonicalise
             skeleton=skeleton,
             name=name,
             polygons=polygons,

@@ -151,7 +151,7 @@ class Shot:
 
     def settle_time(self):
         """Scalar settle time [s] or the per-vertex (N,) map of the dynamics section (parts included)."""
-        return settle_time(self.dynamics, self.rig, where=f"{self.path}: dynamics")
+        return settle_time(self.dynamics, self.rig, where=f"{self.path}: dynamics", channel_map=self.channel_map)
 
     def rigid(self) -> np.ndarray:
         """(N,) bool: vertices that follow x_K exactly (``[dynamics.parts]`` rigid parts and, with ``auto_rigid``,
@@ -160,7 +160,8 @@ class Shot:
 
     def model(self, **overrides):
         """The face dynamics model of the shot's ``[dynamics]`` (keyword overrides for FaceModel.create)."""
-        return dynamics_model(self.dynamics, self.rig, where=f"{self.path}: dynamics", **overrides)
+        return dynamics_model(self.dynamics, self.rig, where=f"{self.path}: dynamics", channel_map=self.channel_map,
+                              **overrides)
 
     def constraints(self, trajectory=None) -> list[Constraint]:
         """The shot's constraints, targets resolved against ``trajectory`` (default the kinematic trajectory)."""
@@ -188,7 +189,8 @@ class Shot:
         label = c["label"] if c["label"] is not None else f"{kind}@{t:g}s"
         n = self.rig.num_vertices
         tt = c["target"] if isinstance(c["target"], dict) else {}
-        group = vertex_group(self.rig, c["group"], where=f"{where}.group") if c["group"] is not None else None
+        group = vertex_group(self.rig, c["group"], where=f"{where}.group", channel_map=self.channel_map) \
+            if c["group"] is not None else None
         falloff = defaults.FALLOFF_M if c.get("falloff_m") is None else float(c["falloff_m"])
         if c.get("falloff_m") is not None and kind == "pose":
             raise KDInputError(f"{where}.falloff_m: applies to subset, velocity and end_effector constraints, not to a "
@@ -350,14 +352,15 @@ def estimate_work(shot: Shot, *, window_s=None, solve: bool = True, window_auto_
                         solve_steps=solve_steps, full_steps=full, scan_steps=scan_steps, memory_bytes=int(memory))
 
 
-def settle_time(dynamics: dict, rig, *, where: str = "dynamics"):
+def settle_time(dynamics: dict, rig, *, where: str = "dynamics", channel_map: dict | None = None):
     """The settle time [s] of a ``[dynamics]`` table: a number, or a per-vertex (N,) map (the soft-tissue map, and
-    parts with their own ``settle_time_s``)."""
+    parts with their own ``settle_time_s``); ``channel_map`` (the shot's ``[animation.map]``) helps the map find the
+    rig's soft-tissue shapes."""
     from ..dynamics.gains import soft_tissue_settle_map
 
     st = dynamics["settle_time_s"]
-    base = soft_tissue_settle_map(rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"]) if isinstance(st, dict) \
-        else float(st)
+    base = soft_tissue_settle_map(rig, stiff_s=st["stiff_s"], loose_s=st["loose_s"], channel_map=channel_map) \
+        if isinstance(st, dict) else float(st)
     own = {name: p for name, p in (dynamics.get("parts") or {}).items() if p.get("settle_time_s") is not None}
     if not own:
         return base
@@ -376,13 +379,15 @@ def rigid_vertices(dynamics: dict, rig, *, where: str = "dynamics") -> np.ndarra
     return mask
 
 
-def dynamics_model(dynamics: dict, rig, *, where: str = "dynamics", **overrides):
-    """A :class:`~kdfaces.dynamics.FaceModel` on ``rig`` from a ``[dynamics]`` table (defaults filled in)."""
+def dynamics_model(dynamics: dict, rig, *, where: str = "dynamics", channel_map: dict | None = None, **overrides):
+    """A :class:`~kdfaces.dynamics.FaceModel` on ``rig`` from a ``[dynamics]`` table (defaults filled in;
+    ``channel_map``, the shot's ``[animation.map]``, as for :func:`settle_time`)."""
     from ..dynamics import FaceModel
 
     d = {**DYNAMICS_DEFAULTS, **dynamics}
     rigid = rigid_vertices(d, rig, where=where)
-    kwargs = dict(settle_time_s=settle_time(d, rig, where=where), damping_ratio=float(d["damping_ratio"]),
+    kwargs = dict(settle_time_s=settle_time(d, rig, where=where, channel_map=channel_map),
+                  damping_ratio=float(d["damping_ratio"]),
                   shape_matching_alpha=float(d["shape_matching_alpha"]), damping_mode=d["damping_mode"],
                   areal_density_kg_m2=float(d["areal_density_kg_m2"]), rigid=rigid if rigid.any() else None)
     kwargs.update(overrides)

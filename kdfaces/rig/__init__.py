@@ -5,8 +5,8 @@ from .blendshapes import BlendshapeRig
 from .groups import GROUP_SHAPES, vertex_group
 from .names import ARKIT_NAMES, alias_key, canonical_name, match_names, resolve_channels
 from .parts import connected_pieces, part_vertices, rigid_pieces
-from .region import moving_region, region_diameter, region_mask
 from .poses import kinematic_pose, rig_pose
+from .region import moving_region, region_diameter, region_mask
 from .skeleton import HEAD_CHAIN_SPLIT, Skeleton, joint_transforms, skin
 from .subdivide import refine_faces, subdivide_rig
 from .subset import subset_rig

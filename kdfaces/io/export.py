@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import KDInputError
-from .pointcache import write_pc2, write_pc2_chunks, write_usd, write_usd_chunks
+from .pointcache import write_pc2, write_usd
 
-__all__ = ["EXPORT_KINDS", "export_trajectory", "export_chunks", "add_export_option", "export_rig"]
+__all__ = ["EXPORT_KINDS", "export_trajectory", "export_chunks", "open_export", "add_export_option", "export_rig"]
 
 EXPORT_KINDS = {"usd": ".usdc", "usda": ".usda", "pc2": ".pc2"}
 RIG_FORMATS = ("obj", "gltf", "glb")
@@ -59,16 +59,30 @@ def export_chunks(path, chunks, times, *, kind: str, num_vertices: int, fps: flo
     frame order (a bake store read chunk by chunk), so a long take is never held whole: ``path`` is the file,
     ``times`` (F,) [s] every frame's times, ``num_vertices`` N. A PC2 file is the same bytes as
     :func:`export_trajectory` of the whole array writes (a USD file the same stage, saved in steps)."""
+    with open_export(path, times, kind=kind, num_vertices=num_vertices, fps=fps, name=name, rig=rig, faces=faces,
+                     unit_m=unit_m) as writer:
+        for block in chunks:
+            writer.write(block)
+    return writer.path
+
+
+def open_export(path, times, *, kind: str, num_vertices: int, fps: float | None = None, name: str = "face",
+                rig=None, faces=None, unit_m: float = 1.0):
+    """The point-cache writer of :func:`export_chunks` for pushing blocks as they are computed (``kdfaces run``
+    streams a take's frames into every cache in one pass): a context manager whose ``write(block)`` takes the
+    next (k, N, 3) frames [m]; the file appears at ``path`` (its ``.path``) when the ``with`` block ends
+    without an exception after every frame of ``times`` (F,) [s]. Arguments as :func:`export_chunks`."""
+    from .pointcache import PC2Writer, USDWriter
+
     p = Path(path)
     if kind not in EXPORT_KINDS:
         raise KDInputError(f"export kind {kind!r}: expected one of {sorted(EXPORT_KINDS)}")
     if kind == "pc2":
-        return write_pc2_chunks(p, chunks, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m)
+        return PC2Writer(p, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m)
     if rig is not None:
-        return write_usd_chunks(p, chunks, times, rig.faces, num_vertices=num_vertices, fps=fps, prim_name=name,
-                                unit_m=unit_m, polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
-    return write_usd_chunks(p, chunks, times, faces, num_vertices=num_vertices, fps=fps, prim_name=name,
-                            unit_m=unit_m)
+        return USDWriter(p, times, rig.faces, num_vertices=num_vertices, fps=fps, prim_name=name, unit_m=unit_m,
+                         polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
+    return USDWriter(p, times, faces, num_vertices=num_vertices, fps=fps, prim_name=name, unit_m=unit_m)
 
 
 def add_export_option(parser) -> None:

@@ -33,7 +33,7 @@ from .obj import triangulate
 
 __all__ = [
     "PointCache", "PC2_HEADER", "PC2_FRAME_OFFSET", "write_usd", "write_usd_chunks", "read_usd", "write_pc2",
-    "write_pc2_chunks", "read_pc2", "infer_fps",
+    "write_pc2_chunks", "PC2Writer", "USDWriter", "read_pc2", "infer_fps",
 ]
 
 PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, sampling [frames], samples
@@ -139,46 +139,91 @@ def write_usd_chunks(path, chunks, times, faces, *, num_vertices: int, fps: floa
     order. A binary (``.usd``/``.usdc``) layer is saved after every chunk, which lets USD drop the samples already
     on disk, so memory stays bounded however long the take (a ``.usda`` text layer is held whole until saved).
     The stage holds the same content as :func:`write_usd` of the whole array; ``times`` (F,) [s] are every frame's.
+    (:class:`USDWriter` is the same file, pushed a block at a time.)
     """
-    from pxr import Sdf, Usd
-
-    p = Path(path)
-    n = int(num_vertices)
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    check_finite(t, f"{p} frame times")
-    if len(t) == 0 or (len(t) > 1 and not (np.diff(t) > 0).all()):
-        raise KDInputError(f"{p}: frame times must be non-empty and strictly increasing")
-    f = None if faces is None else np.asarray(faces, dtype=np.int64)
-    if p.suffix not in (".usd", ".usda", ".usdc"):
-        raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
-    with atomic_path(p) as tmp:
-        try:
-            layer = Sdf.Layer.CreateNew(str(tmp), args={"format": "usda" if p.suffix == ".usda" else "usdc"})
-        except Exception as e:  # noqa: BLE001 - USD raises Tf.ErrorException
-            raise KDIOError(f"{p}: USD could not create the layer ({str(e).strip().splitlines()[-1]})") from None
-        stage = Usd.Stage.Open(layer)
-        stage, points_attr, extent_attr, codes = _usd_stage(p, stage, n, t, f, fps=fps, prim_name=prim_name,
-                                                             polygons=polygons, uvs=uvs, unit_m=unit_m)
-        done = 0
+    with USDWriter(path, times, faces, num_vertices=num_vertices, fps=fps, prim_name=prim_name, polygons=polygons,
+                   uvs=uvs, unit_m=unit_m) as w:
         for block in chunks:
-            x = np.asarray(block)
-            where = f"{p}: frames {done}..{done + len(x) - 1}"
-            if x.ndim != 3 or x.shape[1:] != (n, 3):
-                raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
-            if done + len(x) > len(t):
-                raise KDInputError(f"{p}: more frames of positions than the {len(t)} frame times")
-            check_finite(x, f"{where} positions")
-            if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
-                raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
-            _usd_samples(points_attr, extent_attr, codes[done:done + len(x)], x, unit_m)
-            done += len(x)
-            if p.suffix != ".usda":
-                _usd_export(p, stage.GetRootLayer().Save)
-        if done != len(t):
-            raise KDInputError(f"{p}: {done} frames of positions for {len(t)} frame times")
-        _usd_export(p, stage.GetRootLayer().Save)
-        del stage, layer, points_attr, extent_attr
-    return p
+            w.write(block)
+    return w.path
+
+
+class USDWriter:
+    """A USD point cache written a block of frames at a time: ``with USDWriter(path, times, faces,
+    num_vertices=N) as w: w.write(block)`` for consecutive (k, N, 3) blocks of positions [m] in frame order (the
+    arguments of :func:`write_usd_chunks`). The file appears under ``path`` when the ``with`` block ends without an
+    exception and every frame of ``times`` (F,) [s] was written; otherwise nothing is left behind."""
+
+    def __init__(self, path, times, faces, *, num_vertices: int, fps: float | None = None, prim_name: str = "face",
+                 polygons=None, uvs=None, unit_m: float = 1.0):
+        p = self.path = Path(path)
+        self.num_vertices = int(num_vertices)
+        t = self.times = np.asarray(times, dtype=np.float64).reshape(-1)
+        check_finite(t, f"{p} frame times")
+        if len(t) == 0 or (len(t) > 1 and not (np.diff(t) > 0).all()):
+            raise KDInputError(f"{p}: frame times must be non-empty and strictly increasing")
+        self._faces = None if faces is None else np.asarray(faces, dtype=np.int64)
+        if p.suffix not in (".usd", ".usda", ".usdc"):
+            raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
+        self._stage_args = {"fps": fps, "prim_name": prim_name, "polygons": polygons, "uvs": uvs, "unit_m": unit_m}
+        self.unit_m = unit_m
+        self.done = 0
+        self._atomic = self._layer = self._stage = self._points = self._extent = self._codes = None
+
+    def __enter__(self) -> USDWriter:
+        from pxr import Sdf, Usd
+
+        p = self.path
+        self._atomic = atomic_path(p)
+        tmp = self._atomic.__enter__()
+        try:
+            try:
+                self._layer = Sdf.Layer.CreateNew(str(tmp), args={"format": "usda" if p.suffix == ".usda" else "usdc"})
+            except Exception as e:  # noqa: BLE001 - USD raises Tf.ErrorException
+                raise KDIOError(f"{p}: USD could not create the layer ({str(e).strip().splitlines()[-1]})") from None
+            stage = Usd.Stage.Open(self._layer)
+            self._stage, self._points, self._extent, self._codes = _usd_stage(
+                p, stage, self.num_vertices, self.times, self._faces, **self._stage_args)
+        except BaseException as e:
+            self._close(type(e))
+            raise
+        return self
+
+    def write(self, block) -> None:
+        """Append the next (k, N, 3) frames of positions [m] (a binary layer is saved after each block)."""
+        p, n, x = self.path, self.num_vertices, np.asarray(block)
+        where = f"{p}: frames {self.done}..{self.done + len(x) - 1}"
+        if x.ndim != 3 or x.shape[1:] != (n, 3):
+            raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
+        if self.done + len(x) > len(self.times):
+            raise KDInputError(f"{p}: more frames of positions than the {len(self.times)} frame times")
+        check_finite(x, f"{where} positions")
+        if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
+            raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+        _usd_samples(self._points, self._extent, self._codes[self.done:self.done + len(x)], x, self.unit_m)
+        self.done += len(x)
+        if p.suffix != ".usda":
+            _usd_export(p, self._stage.GetRootLayer().Save)
+
+    def _close(self, exc_type) -> None:
+        atomic, self._atomic = self._atomic, None
+        try:
+            if exc_type is None:
+                _usd_export(self.path, self._stage.GetRootLayer().Save)
+        except BaseException as e:
+            exc_type = type(e)
+            raise
+        finally:
+            self._stage = self._layer = self._points = self._extent = None
+            if atomic is not None:
+                atomic.__exit__(exc_type, None, None)
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None and self.done != len(self.times):
+            self._close(KDInputError)
+            raise KDInputError(f"{self.path}: {self.done} frames of positions for {len(self.times)} frame times")
+        self._close(exc_type)
+        return False
 
 
 def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, polygons, uvs, unit_m):
@@ -331,52 +376,99 @@ def write_pc2_chunks(path, chunks, times, *, num_vertices: int, fps: float | Non
 
     Positions are rounded to float32 metres before the unit conversion, so a cache written from float32 data and
     one written from the float64 positions it was rounded from are the same bytes. ``times`` (F,) [s] are every
-    frame's times; the chunks must hold exactly F frames.
+    frame's times; the chunks must hold exactly F frames. (:class:`PC2Writer` is the same file, pushed a block at a
+    time.)
     """
-    p = Path(path)
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    check_finite(t, f"{p} frame times")
-    if len(t) == 0:
-        raise KDInputError(f"{p}: expected at least one frame time")
-    rate = infer_fps(t, fps=fps, where=str(p))
-    step = float(t[1] - t[0]) if len(t) > 1 else 1.0 / rate
-    if len(t) > 2 and np.abs(np.diff(t) - step).max() > _UNIFORM_RTOL * max(step, abs(t[-1])):
-        raise KDInputError(f"{p}: PC2 needs uniformly spaced frame times; got spacings from {np.diff(t).min()} to "
-                           f"{np.diff(t).max()} s")
-    if len(t) > 1 and not (np.diff(t) > 0).all():
-        raise KDInputError(f"{p}: frame times must be strictly increasing")
-    if not (np.isfinite(unit_m) and unit_m > 0):
-        raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
-    if isinstance(frame_offset, bool) or int(frame_offset) != frame_offset or frame_offset < 0:
-        raise KDInputError(f"{p}: frame_offset: expected a whole number of frames ≥ 0, got {frame_offset}")
-    n = int(num_vertices)
-    header = PC2_HEADER.pack(PC2_SIGNATURE, 1, n, 0.0, step * rate, len(t) + int(frame_offset))
-    done = 0
-    with atomic_path(p) as tmp:
+    with PC2Writer(path, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m, frame_offset=frame_offset) as w:
+        for block in chunks:
+            w.write(block)
+    return w.path
+
+
+class PC2Writer:
+    """A PC2 file written a block of frames at a time: ``with PC2Writer(path, times, num_vertices=N) as w:
+    w.write(block)`` for consecutive (k, N, 3) blocks of positions [m] in frame order. The file appears under
+    ``path`` when the ``with`` block ends without an exception and every frame of ``times`` (F,) [s] was written;
+    otherwise nothing is left behind. The bytes are those of :func:`write_pc2_chunks` (arguments as there)."""
+
+    def __init__(self, path, times, *, num_vertices: int, fps: float | None = None, unit_m: float = 1.0,
+                 frame_offset: int = PC2_FRAME_OFFSET):
+        p = self.path = Path(path)
+        t = self.times = np.asarray(times, dtype=np.float64).reshape(-1)
+        check_finite(t, f"{p} frame times")
+        if len(t) == 0:
+            raise KDInputError(f"{p}: expected at least one frame time")
+        rate = infer_fps(t, fps=fps, where=str(p))
+        step = float(t[1] - t[0]) if len(t) > 1 else 1.0 / rate
+        if len(t) > 2 and np.abs(np.diff(t) - step).max() > _UNIFORM_RTOL * max(step, abs(t[-1])):
+            raise KDInputError(f"{p}: PC2 needs uniformly spaced frame times; got spacings from {np.diff(t).min()} "
+                               f"to {np.diff(t).max()} s")
+        if len(t) > 1 and not (np.diff(t) > 0).all():
+            raise KDInputError(f"{p}: frame times must be strictly increasing")
+        if not (np.isfinite(unit_m) and unit_m > 0):
+            raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
+        if isinstance(frame_offset, bool) or int(frame_offset) != frame_offset or frame_offset < 0:
+            raise KDInputError(f"{p}: frame_offset: expected a whole number of frames ≥ 0, got {frame_offset}")
+        self.num_vertices, self.unit_m, self.frame_offset = int(num_vertices), float(unit_m), int(frame_offset)
+        self._header = PC2_HEADER.pack(PC2_SIGNATURE, 1, self.num_vertices, 0.0, step * rate,
+                                       len(t) + self.frame_offset)
+        self.done = 0
+        self._atomic = self._file = self._fh = None
+
+    def __enter__(self) -> PC2Writer:
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
         try:
-            with open(tmp, "wb") as fh:
-                fh.write(header)
-                for block in chunks:
-                    x = np.asarray(block)
-                    where = f"{p}: frames {done}..{done + len(x) - 1}"
-                    if x.ndim != 3 or x.shape[1:] != (n, 3):
-                        raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
-                    if done + len(x) > len(t):
-                        raise KDInputError(f"{p}: more frames of positions than the {len(t)} frame times")
-                    check_finite(x, f"{where} positions")
-                    if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
-                        raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
-                    out = (x.astype(np.float32).astype(np.float64) / unit_m).astype("<f4")
-                    if done == 0:
-                        for _ in range(int(frame_offset)):
-                            fh.write(out[:1].tobytes())
-                    fh.write(np.ascontiguousarray(out).tobytes())
-                    done += len(x)
+            self._file = open(tmp, "wb")  # closed through its context manager protocol
+            self._fh = self._file.__enter__()
+            self._fh.write(self._header)
+        except BaseException as e:
+            self._close(type(e))
+            if isinstance(e, OSError):
+                raise KDIOError(f"{self.path}: write failed ({e.strerror or e})") from None
+            raise
+        return self
+
+    def write(self, block) -> None:
+        """Append the next (k, N, 3) frames of positions [m]."""
+        p, n, x = self.path, self.num_vertices, np.asarray(block)
+        where = f"{p}: frames {self.done}..{self.done + len(x) - 1}"
+        if x.ndim != 3 or x.shape[1:] != (n, 3):
+            raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
+        if self.done + len(x) > len(self.times):
+            raise KDInputError(f"{p}: more frames of positions than the {len(self.times)} frame times")
+        check_finite(x, f"{where} positions")
+        if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
+            raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+        out = (x.astype(np.float32).astype(np.float64) / self.unit_m).astype("<f4")
+        try:
+            if self.done == 0:
+                for _ in range(self.frame_offset):
+                    self._fh.write(out[:1].tobytes())
+            self._fh.write(np.ascontiguousarray(out).tobytes())
         except OSError as e:
             raise KDIOError(f"{p}: write failed ({e.strerror or e})") from None
-        if done != len(t):
-            raise KDInputError(f"{p}: {done} frames of positions for {len(t)} frame times")
-    return p
+        self.done += len(x)
+
+    def _close(self, exc_type) -> None:
+        file, self._file, self._fh = self._file, None, None
+        atomic, self._atomic = self._atomic, None
+        try:
+            if file is not None:
+                file.__exit__(None, None, None)
+        except OSError as e:
+            if exc_type is None:
+                atomic.__exit__(KDIOError, None, None)
+                raise KDIOError(f"{self.path}: write failed ({e.strerror or e})") from None
+        if atomic is not None:
+            atomic.__exit__(exc_type, None, None)
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None and self.done != len(self.times):
+            self._close(KDInputError)
+            raise KDInputError(f"{self.path}: {self.done} frames of positions for {len(self.times)} frame times")
+        self._close(exc_type)
+        return False
 
 
 def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m: float = 1.0,

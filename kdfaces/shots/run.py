@@ -6,57 +6,75 @@
 from __future__ import annotations
 
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..defaults import MAX_STEPS, THREADS
+from ..defaults import BAKE_CHUNK_FRAMES, MAX_STEPS, THREADS
 from ..deprecation import renamed_kwargs
-from ..errors import KDInputError
+from ..errors import KDInputError, check_count
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_full, simulate_kd, window_steps
 from ..resources import memory_budget_bytes, progress_bar, single_threaded_blas
 from ..window import adaptive_windows
 from .shotfile import Shot, estimate_work, load_shot
 
-__all__ = ["ShotRun", "run_shot", "kd_windows", "ikd_summary", "strip_times", "write_run_outputs", "run_summary",
-           "add_run_parser",
-           "add_max_steps_option"]
+__all__ = ["ShotRun", "STATE_KINDS", "run_shot", "kd_windows", "ikd_summary", "strip_times", "write_run_outputs",
+           "run_summary", "open_run_exports", "add_run_parser", "add_max_steps_option"]
+
+
+#: What a run's frames can be asked for: the kinematic trajectory x_K, its KD states, the KD states of the
+#: IKD-corrected trajectory, and the final trajectory (IKD with constraints, else KD).
+STATE_KINDS = ("kinematic", "kd", "ikd", "final")
 
 
 @dataclass
 class ShotRun:
-    """Everything a run computed.
+    """Everything a run computed, and its frames on demand.
+
+    A run does not hold its frames: :func:`run_shot` streams them chunk by chunk (its ``sinks`` receive the final
+    trajectory as it is computed) and keeps the statistics below. :meth:`states` simulates any frame range again
+    (KD states are history-free, so a range is bit for bit what the whole run computed) and :meth:`iter_states`
+    walks the take in chunks. The attributes ``kinematic``, ``kd``, ``ikd`` and ``final`` are whole (F, N, 3)
+    arrays for short shots: computed on first use (unless ``run_shot(keep_states=True)`` kept them) and then held.
 
     Attributes:
         times: frame times [s], shape (F,).
-        kinematic, kd: x_K and x_KD at every frame [m], shape (F, N, 3).
+        kinematic, kd: x_K and x_KD at every frame [m], shape (F, N, 3) (whole arrays, see above).
         ikd: x_KD of the corrected trajectory x_K + f at every frame [m], (F, N, 3); None without constraints.
         ikd_result: the solver's result (None without constraints); check_errors: the independent check
             (each constrained KD state recomputed from scratch with the final correction) [m or m/s], (C,).
         window_s, window_auto_s, epsilon_m: the KD window used (with adaptive windows: the one the IKD solve
             used, the automatic one), the automatic one, and its ε [m].
-        ms_per_state: wall time of the all-frames KD batch divided by the frames [ms].
+        ms_per_state: wall time of the KD of every frame (summed over chunks) divided by the frames [ms].
+        chunk_frames: frames per KD batch of the pass (and of :meth:`iter_states`); max_memory_bytes: each batch's
+            memory budget (None: half the available memory).
+        deviation_m, ikd_deviation_m: per vertex, the largest ‖x_KD − x_K‖ (of KD, and of IKD; None without
+            constraints) over every frame [m], shape (N,); frame_deviation_m, ikd_frame_deviation_m: per frame,
+            the largest over vertices [m], shape (F,).
         adaptive: whether each frame has its own window (``window_s = "adaptive"``); then ``kd_windows_s`` and
             ``ikd_windows_s`` (F,) [s] are the frames' windows of ``kd`` and ``ikd``, ``steps_adaptive`` and
             ``steps_global`` the steps summed over frames with them and with the automatic window, and
             ``max_error_vs_full_m`` / ``ikd_max_error_vs_full_m`` the largest ‖x_KD − x_full‖ over every vertex
-            and frame [m] (:func:`~kdfaces.kd.simulate_full` of the same trajectory).
+            and frame [m] (:func:`~kdfaces.kd.simulate_full` of the same trajectory, which does hold the take).
     """
 
     shot: Shot
     system: object
     times: np.ndarray
-    kinematic: np.ndarray
-    kd: np.ndarray
-    ikd: np.ndarray | None
     ikd_result: IKDResult | None
     check_errors: np.ndarray | None
     window_s: float
     window_auto_s: float
     epsilon_m: float
     ms_per_state: float
+    chunk_frames: int = BAKE_CHUNK_FRAMES
+    max_memory_bytes: int | None = None
+    deviation_m: np.ndarray | None = None
+    frame_deviation_m: np.ndarray | None = None
+    ikd_deviation_m: np.ndarray | None = None
+    ikd_frame_deviation_m: np.ndarray | None = None
     adaptive: bool = False
     kd_windows_s: np.ndarray | None = None
     ikd_windows_s: np.ndarray | None = None
@@ -64,6 +82,7 @@ class ShotRun:
     steps_global: int | None = None
     max_error_vs_full_m: float | None = None
     ikd_max_error_vs_full_m: float | None = None
+    kept: dict = field(default_factory=dict, repr=False)
 
     @property
     def step_s(self) -> float:
@@ -71,9 +90,105 @@ class ShotRun:
         return self.shot.step_s
 
     @property
+    def num_frames(self) -> int:
+        """F, the frames of the shot."""
+        return len(self.times)
+
+    def _kind(self, which: str) -> str:
+        if which not in STATE_KINDS:
+            raise KDInputError(f"states: expected one of {STATE_KINDS}, got {which!r}")
+        if which == "final":
+            return "kd" if self.ikd_result is None else "ikd"
+        return which
+
+    def states(self, which: str = "final", lo: int = 0, hi: int | None = None) -> np.ndarray | None:
+        """Frames ``lo``..``hi`` − 1 of ``which`` (:data:`STATE_KINDS`) [m], shape (hi − lo, N, 3), float64:
+        simulated again (history-free, bit for bit the run's own), or sliced from what the run holds; None for
+        ``"ikd"`` without constraints."""
+        kind = self._kind(which)
+        if kind == "ikd" and self.ikd_result is None:
+            return None
+        f = self.num_frames
+        hi = f if hi is None else int(hi)
+        lo = int(lo)
+        if not 0 <= lo < hi <= f:
+            raise KDInputError(f"states: expected frames 0 <= lo < hi <= {f}, got lo={lo}, hi={hi}")
+        if kind in self.kept:
+            return self.kept[kind][lo:hi]
+        t = self.times[lo:hi]
+        base, corrected = self._stream_trajectories()
+        if kind == "kinematic":
+            return base.positions(t)
+        traj, windows = (base, self.kd_windows_s) if kind == "kd" else (corrected, self.ikd_windows_s)
+        w = self.window_s if windows is None else windows[lo:hi]
+        return simulate_kd(self.system, traj, t, w, step_s=self.step_s, max_memory_bytes=self.max_memory_bytes)
+
+    def _stream_trajectories(self):
+        """(x_K, x_K + f or None): the shot's trajectory and the corrected one, rebuilt for passes over the take
+        (as a bake worker rebuilds them) with a sample cache of about two chunks' windows, not the shot's default
+        256 MiB, so that a pass keeps no more than it re-reads whatever the take's length. Same values, same bits."""
+        if "_stream" not in self.__dict__:
+            import warnings
+
+            from ..ikd.corrections import CorrectedTrajectory
+            from ..motion.trajectory import KinematicTrajectory
+
+            shot = self.shot
+            windows = [w for w in (self.kd_windows_s, self.ikd_windows_s) if w is not None]
+            n = max([window_steps(self.window_s, self.step_s)] + [int(np.ceil(w.max() / self.step_s - 1e-9))
+                                                                   for w in windows])
+            sample = 3 * shot.rig.num_vertices * 3 * 8  # x_K, ẋ_K, ẍ_K float64 (what the cache keeps per time)
+            with warnings.catch_warnings():  # the shot's own trajectory has shown its warnings once
+                warnings.simplefilter("ignore")
+                base = KinematicTrajectory(shot.rig, shot.animation, channel_map=shot.channel_map,
+                                           strict=shot.strict_channels,
+                                           cache_bytes=2 * (self.chunk_frames + n + 1) * sample)
+            corrected = None
+            r = self.ikd_result
+            if r is not None:
+                final = r.trajectory
+                if getattr(final, "base", None) is shot.trajectory and getattr(final, "bump", None) is None:
+                    corrected = CorrectedTrajectory(base, final.correction.copy())
+                else:  # not the shot's trajectory plus one correction: simulate the solver's own
+                    corrected = final
+            self.__dict__["_stream"] = (base, corrected)
+        return self.__dict__["_stream"]
+
+    def iter_states(self, which: str = "final", *, chunk_frames: int | None = None):
+        """``(lo, hi, states(which, lo, hi))`` for consecutive chunks of ``chunk_frames`` frames (default the run's
+        :attr:`chunk_frames`) over the whole take: memory bounded by one chunk however long the take."""
+        k = self.chunk_frames if chunk_frames is None else check_count(chunk_frames, "chunk_frames")
+        for lo in range(0, self.num_frames, k):
+            hi = min(lo + k, self.num_frames)
+            yield lo, hi, self.states(which, lo, hi)
+
+    def _whole(self, kind: str) -> np.ndarray | None:
+        if kind == "ikd" and self.ikd_result is None:
+            return None
+        if kind not in self.kept:
+            self.kept[kind] = np.concatenate([x for _, _, x in self.iter_states(kind)])
+        return self.kept[kind]
+
+    @property
+    def kinematic(self) -> np.ndarray:
+        """x_K at every frame [m], (F, N, 3) (held once asked for; :meth:`states` for a frame range)."""
+        return self._whole("kinematic")
+
+    @property
+    def kd(self) -> np.ndarray:
+        """x_KD at every frame [m], (F, N, 3) (held once asked for; :meth:`states` for a frame range)."""
+        return self._whole("kd")
+
+    @property
+    def ikd(self) -> np.ndarray | None:
+        """x_KD of the corrected trajectory at every frame [m], (F, N, 3), or None without constraints (held once
+        asked for; :meth:`states` for a frame range)."""
+        return self._whole("ikd")
+
+    @property
     def final(self) -> np.ndarray:
         """The final trajectory of the shot: IKD when it has constraints, else KD, (F, N, 3) [m]."""
-        return self.kd if self.ikd is None else self.ikd
+        return self._whole(self._kind("final"))
 
 
 @renamed_kwargs(window="window_s", damping="step_scale")
@@ -81,7 +196,8 @@ class ShotRun:
 def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: bool = True, device="cpu",
              threads: int = THREADS, update: str | None = None, step_scale: float | None = None,
              max_memory_bytes: int | None = None, progress: bool = False,
-             max_steps: float | None = MAX_STEPS) -> ShotRun:
+             max_steps: float | None = MAX_STEPS, chunk_frames: int | None = None, sinks=(),
+             keep_states: bool = False) -> ShotRun:
     """Simulate a shot's KD for every frame and, when it has constraints and ``solve``, its IKD.
 
     ``window_s`` [s] (or ``"auto"``, ``"adaptive"``) overrides the shot's ``dynamics.window_s``. With
@@ -98,6 +214,14 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     bounded by ``max_steps``. numpy's BLAS runs on one thread throughout
     (:func:`kdfaces.resources.single_threaded_blas`), so the kinematic, KD and IKD trajectories are the same bits on
     any machine and in :func:`kdfaces.bake.bake_shot`.
+
+    Streaming: once the window is known and the IKD solve is done, the frames go through
+    :func:`~kdfaces.kd.simulate_kd` in chunks of ``chunk_frames`` (default
+    :data:`~kdfaces.defaults.BAKE_CHUNK_FRAMES`, the bake's chunks), KD and IKD chunk by chunk, so memory does not
+    grow with the take. Each of ``sinks`` is called as ``sink(lo, hi, final)`` with every chunk of the final
+    trajectory in frame order (frames ``lo``..``hi`` − 1, (hi − lo, N, 3) [m]; e.g. a point-cache writer's
+    ``write``); the deviation statistics of :class:`ShotRun` are gathered on the way. ``keep_states`` also keeps
+    the whole kinematic, KD and IKD arrays (short shots that read them all).
     """
     window = window_s
     from ..dynamics import FaceSystem
@@ -110,6 +234,8 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     if isinstance(window, bool) or not (window in ("auto", "adaptive") or (isinstance(window, int | float)
                                                                           and window > 0)):
         raise KDInputError(f"window: expected positive seconds, 'auto' or 'adaptive', got {window!r}")
+    k = BAKE_CHUNK_FRAMES if chunk_frames is None else check_count(chunk_frames, "chunk_frames")
+    sinks = list(sinks)
     budget = memory_budget_bytes(max_memory_bytes)
     mode = window
     estimate_work(shot, window_s=mode, solve=solve).check(max_steps, max_memory_bytes=budget)  # before anything
@@ -125,24 +251,16 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
     if mode == "auto":  # the window is known now: the estimate again, with its steps
         estimate_work(shot, window_s=mode, solve=solve, window_auto_s=auto).check(max_steps)
     times = shot.animation.frame_times
-    kinematic = traj.positions(times)
     extra = {}
-    frame_windows = window
-    t0 = _time.perf_counter()
+    kd_windows_s = None
     if adaptive:
-        frame_windows = adaptive_windows(system, traj, times, step_s=h, max_steps=max_steps).window_s
-    kd = simulate_kd(system, traj, times, frame_windows, step_s=h, max_memory_bytes=max_memory_bytes,
-                     progress=progress)
-    ms = 1e3 * (_time.perf_counter() - t0) / len(times)
-    if adaptive:
-        full = simulate_full(system, traj, times, step_s=h)
-        extra = {"adaptive": True, "kd_windows_s": frame_windows,
-                 "steps_adaptive": int(np.rint(frame_windows / h).sum()),
-                 "steps_global": window_steps(window, h) * len(times),
-                 "max_error_vs_full_m": float(np.linalg.norm(kd - full, axis=-1).max())}
-    result = ikd = check = None
+        kd_windows_s = adaptive_windows(system, traj, times, step_s=h, max_steps=max_steps).window_s
+        extra = {"adaptive": True, "kd_windows_s": kd_windows_s,
+                 "steps_adaptive": int(np.rint(kd_windows_s / h).sum()),
+                 "steps_global": window_steps(window, h) * len(times)}
+    result = check = None
     constraints = shot.constraints()
-    if solve and constraints:
+    if solve and constraints:  # first: the pass below streams KD and IKD of each chunk together
         s = shot.solver_options()
         if update is not None:
             s["update"] = update
@@ -151,18 +269,75 @@ def run_shot(shot: Shot | str | Path, *, window_s: float | None = None, solve: b
         with progress_bar("IKD sweeps", s["max_iterations"], progress) as bar:
             result = solve_ikd(system, traj, constraints, window_s=window, step_s=h,
                                callback=lambda it, err: bar.update(1), **s)
-        ikd_windows = _kd_windows(system, result, result.trajectory, times, window, h, max_steps) if adaptive \
-            else window
-        ikd = simulate_kd(system, result.trajectory, times, ikd_windows, step_s=h, max_memory_bytes=max_memory_bytes,
-                          progress=progress)
         check = independent_check(system, result, window_s=window, step_s=h)
         if adaptive:
-            full = simulate_full(system, result.trajectory, times, step_s=h)
-            extra["ikd_windows_s"] = ikd_windows
-            extra["ikd_max_error_vs_full_m"] = float(np.linalg.norm(ikd - full, axis=-1).max())
-    return ShotRun(shot=shot, system=system, times=times, kinematic=kinematic, kd=kd, ikd=ikd, ikd_result=result,
-                   check_errors=check, window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m,
-                   ms_per_state=ms, **extra)
+            extra["ikd_windows_s"] = _kd_windows(system, result, result.trajectory, times, window, h, max_steps)
+    run = ShotRun(shot=shot, system=system, times=times, ikd_result=result, check_errors=check,
+                  window_s=float(window), window_auto_s=float(auto), epsilon_m=est.epsilon_m, ms_per_state=0.0,
+                  chunk_frames=k, max_memory_bytes=max_memory_bytes, **extra)
+    _stream(run, sinks, keep_states, progress)
+    return run
+
+
+def _stream(run: ShotRun, sinks, keep: bool, progress: bool) -> None:
+    """The passes over every frame, chunk by chunk: KD (timed), then with constraints IKD; the deviation
+    statistics; ``sinks`` get the final trajectory's chunks; with ``keep`` the chunks are kept whole in
+    ``run.kept``. One trajectory per pass, so the face system's trajectory bake carries over from chunk to chunk."""
+    f = run.num_frames
+    n = run.shot.rig.num_vertices
+    solved = run.ikd_result is not None
+    kinds = ("kd", "ikd") if solved else ("kd",)
+    # the system's trajectory bake (x_K, ẋ_K on the step grid) kept across chunks: a few chunks' windows, not the
+    # 512 MiB default, so it restarts (re-baking one window) every few chunks instead of growing with the take
+    steps = window_steps(run.window_s, run.step_s)
+    for w in (run.kd_windows_s, run.ikd_windows_s):
+        if w is not None:
+            steps = max(steps, int(np.ceil(w.max() / run.step_s - 1e-9)))
+    if hasattr(run.system, "max_bake_bytes"):
+        run.system.max_bake_bytes = min(run.system.max_bake_bytes, 4 * (run.chunk_frames + steps + 1) * 48 * n)
+    kd_s = 0.0
+    kept = {}
+    with progress_bar("KD states", f * len(kinds), progress) as bar:
+        for kind in kinds:
+            full = None
+            if run.adaptive:  # the ground truth is one simulation from the shot start: it holds the take
+                traj = run.shot.trajectory if kind == "kd" else run.ikd_result.trajectory
+                full = simulate_full(run.system, traj, run.times, step_s=run.step_s)
+            vertex, frame, error = np.zeros(n), np.zeros(f), 0.0
+            chunks = {"kinematic": [], kind: []}
+            for lo in range(0, f, run.chunk_frames):
+                hi = min(lo + run.chunk_frames, f)
+                kinematic = run.states("kinematic", lo, hi)
+                t0 = _time.perf_counter()
+                x = run.states(kind, lo, hi)
+                if kind == "kd":
+                    kd_s += _time.perf_counter() - t0
+                d = np.linalg.norm(x - kinematic, axis=-1)
+                vertex = np.maximum(vertex, d.max(axis=0))
+                frame[lo:hi] = d.max(axis=1)
+                if full is not None:
+                    error = max(error, float(np.linalg.norm(x - full[lo:hi], axis=-1).max()))
+                if kind == kinds[-1]:
+                    for sink in sinks:
+                        sink(lo, hi, x)
+                if keep:
+                    chunks[kind].append(x)
+                    if kind == "kd":
+                        chunks["kinematic"].append(kinematic)
+                bar.update(hi - lo)
+            del full
+            if kind == "kd":
+                run.deviation_m, run.frame_deviation_m = vertex, frame
+                if run.adaptive:
+                    run.max_error_vs_full_m = error
+            else:
+                run.ikd_deviation_m, run.ikd_frame_deviation_m = vertex, frame
+                if run.adaptive:
+                    run.ikd_max_error_vs_full_m = error
+            if keep:
+                kept.update({k: np.concatenate(v) for k, v in chunks.items() if v})
+    run.ms_per_state = 1e3 * kd_s / f
+    run.kept.update(kept)
 
 
 def _kd_windows(system, result, trajectory, times, window_s: float, step_s: float, max_steps=MAX_STEPS):
@@ -240,11 +415,12 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
     """Filmstrip (kinematic | KD | IKD), convergence plot, point caches of the final trajectory.
 
     ``convergence_runs`` maps a label to an :class:`IKDResult` to compare in the convergence plot (default: the
-    run's own solve). Point caches are written in units of ``export_unit_m`` metres (1: metres). Returns the
-    written paths.
+    run's own solve). Point caches are written in units of ``export_unit_m`` metres (1: metres), chunk by chunk
+    (:meth:`ShotRun.iter_states`: simulated again unless the run kept its states; ``kdfaces run`` writes them
+    during its pass instead, :func:`open_run_exports`). Returns the written paths.
     """
-    from ..io.export import export_trajectory
-    from ..viz.figures import filmstrip, part_colors
+    from ..io.export import EXPORT_KINDS, export_chunks
+    from ..viz.figures import filmstrip, part_colors, rig_focus
     from ..viz.ikd_report import convergence_plot
 
     out = Path(out)
@@ -258,27 +434,47 @@ def write_run_outputs(run: ShotRun, out, *, exports=(), convergence_runs: dict |
         corrected = run.ikd_result.trajectory
         rows["IKD"] = simulate_kd(run.system, corrected, t, kd_windows(run, corrected, t), step_s=run.step_s)
     paths = [filmstrip(out / "filmstrip.png", rig.faces, rows, t, title=f"{run.shot.name}: {' | '.join(rows)}",
-                       colors=part_colors(rig))]
+                       colors=part_colors(rig), focus=rig_focus(rig))]
     if run.ikd_result is not None:
         runs = convergence_runs or {run.ikd_result.update: run.ikd_result}
         paths.append(convergence_plot(out / "ikd_convergence.png", runs, tolerance_m=run.shot.solver["tolerance_m"]))
-    for kind in exports:
-        paths.append(export_trajectory(out, run.final, run.times, kind=kind, rig=rig, fps=run.shot.animation.fps,
-                                       name=run.shot.name, unit_m=export_unit_m))
+    for kind in dict.fromkeys(exports):
+        paths.append(export_chunks(out / f"{run.shot.name}{EXPORT_KINDS[kind]}",
+                                   (x for _, _, x in run.iter_states("final")), run.times, kind=kind,
+                                   num_vertices=rig.num_vertices, rig=rig, fps=run.shot.animation.fps,
+                                   name=run.shot.name, unit_m=export_unit_m))
     return paths
 
 
+def open_run_exports(shot: Shot, out, kinds, *, unit_m: float = 1.0) -> list:
+    """Point-cache writers (:func:`~kdfaces.io.export.open_export`) for the final trajectory of ``shot``, one per
+    kind in ``kinds``, at ``out/<shot name>.<ext>`` (the files :func:`write_run_outputs` writes), in units of
+    ``unit_m`` metres: enter them, pass their ``write`` to :func:`run_shot` as sinks, and each file appears when its
+    ``with`` block ends."""
+    from ..io.export import EXPORT_KINDS, open_export
+
+    out = Path(out)
+    return [open_export(out / f"{shot.name}{EXPORT_KINDS[kind]}", shot.animation.frame_times, kind=kind,
+                        num_vertices=shot.rig.num_vertices, rig=shot.rig, fps=shot.animation.fps, name=shot.name,
+                        unit_m=unit_m) for kind in dict.fromkeys(kinds)]
+
+
 def _run_command(args) -> dict:
+    from contextlib import ExitStack
+
     from ..defaults import user_cache_dir
     from ..io.summary import write_summary
     from ..resources import parse_bytes
 
     budget = None if args.max_memory is None else parse_bytes(args.max_memory)
     shot = load_shot(args.shot, cache_dir=user_cache_dir(), max_steps=args.max_steps)
-    run = run_shot(shot, window_s=args.window, max_memory_bytes=budget, progress=True, max_steps=args.max_steps)
     out = Path(args.out)
     unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
-    paths = write_run_outputs(run, out, exports=args.export, export_unit_m=unit)
+    with ExitStack() as stack:  # the caches fill during the run's one pass over the take, chunk by chunk
+        writers = [stack.enter_context(w) for w in open_run_exports(shot, out, args.export, unit_m=unit)]
+        run = run_shot(shot, window_s=args.window, max_memory_bytes=budget, progress=True, max_steps=args.max_steps,
+                       sinks=[lambda lo, hi, x, w=w: w.write(x) for w in writers])
+    paths = write_run_outputs(run, out) + [w.path for w in writers]
     summary = run_summary(run, out, paths)
     write_summary(out, summary)
     return summary
@@ -287,7 +483,7 @@ def _run_command(args) -> dict:
 def run_summary(run: ShotRun, out, paths) -> dict:
     """summary.json of a run: rig, timing, KD window and deviation, IKD, outputs (paths relative to ``out``)."""
     rig, anim = run.shot.rig, run.shot.animation
-    dev = np.linalg.norm(run.kd - run.kinematic, axis=-1).max(axis=0)  # (N,) [m]
+    dev = run.deviation_m  # (N,) [m], gathered chunk by chunk during the run
     traj = run.shot.trajectory
     summary = {
         "shot": run.shot.name,

@@ -4,7 +4,6 @@ synthetic Live Link Face take (tests/avatar_fixtures.py)."""
 from __future__ import annotations
 
 import csv
-import dataclasses
 import importlib.util
 from pathlib import Path
 
@@ -171,15 +170,18 @@ def test_fbx_writer_when_blender_is_there(body, tmp_path):
     path = write_avatar_fbx(studio_avatar(body), tmp_path / "body_cm.fbx")  # the studio's cm, AK_nn_ names
     data = path.read_bytes()
     assert data[:18] == b"Kaydara FBX Binary" and b"AK_25_JawOpen" in data and b"eyelashes_left" in data
-    # the cut-out face as one mesh, in centimetres, loads back to the same rig to float32 precision
-    face = dataclasses.replace(studio_avatar(cut_out_face(body)), vertex_parts=None, part_names=())
+    # the cut-out face, one mesh per part, in centimetres, loads back to the same rig to float32 precision
+    face = studio_avatar(cut_out_face(body))
     back = load_rig(write_avatar_fbx(face, tmp_path / "face_cm.fbx"))
     assert back.source_unit_m == pytest.approx(0.01) and back.shape_names == face.shape_names
-    assert back.skeleton.names == HEAD_CHAIN
+    assert back.skeleton.names == HEAD_CHAIN and sorted(back.part_names) == sorted(face.part_names)
+    # Blender writes the parts sorted by name, each in its own vertex order
+    ours = np.argsort(np.asarray(face.part_names)[face.vertex_parts], kind="stable")
+    theirs = np.argsort(np.asarray(back.part_names)[back.vertex_parts], kind="stable")
     tol = 4 * F32_M  # float32 in Blender, cm ↔ m and the axis swap each round once
-    np.testing.assert_allclose(back.neutral, face.neutral, rtol=0, atol=tol)
-    np.testing.assert_allclose(back.deltas, face.deltas, rtol=0, atol=tol)
-    np.testing.assert_allclose(back.skeleton.weights, face.skeleton.weights, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(back.neutral[theirs], face.neutral[ours], rtol=0, atol=tol)
+    np.testing.assert_allclose(back.deltas[:, theirs], face.deltas[:, ours], rtol=0, atol=tol)
+    np.testing.assert_allclose(back.skeleton.weights[theirs], face.skeleton.weights[ours], rtol=0, atol=1e-6)
     np.testing.assert_allclose(back.skeleton.positions, face.skeleton.positions, rtol=0, atol=tol)
 
 

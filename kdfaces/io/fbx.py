@@ -19,13 +19,22 @@
 Anything ufbx cannot read — a truncated file, ASCII FBX 6, another format renamed ``.fbx`` — is one
 :class:`~kdfaces.errors.KDInputError` naming the file.
 
-The bindings (ufbx 0.0.5) free an element's Python wrapper while the C side may hand it out again, so every
-wrapper touched here is kept alive in one list until the arrays are copied out (an element fetched again after
-its wrapper was collected crashed the interpreter).
+Reading goes through :class:`_SceneReader`, which works around reference-counting bugs of the ufbx 0.0.5 bindings
+(``Element_from`` in their C prelude): each scene caches one wrapper per element but owns no reference to it, and
+hands the cached wrapper out again *without* a new reference, while freeing the scene releases every cached
+wrapper once more and the cycle collector traverses the cache. So a wrapper dies while the cache still points at
+it (fetching it again, freeing the scene or a garbage collection then touches freed memory) — in ~9 of 10 loads
+of a multi-mesh file, where bones and parents are reached from several meshes. The reader adds the missing
+reference for every wrapper the bindings hand out (only when a probe of the scene shows the bug), holds every
+wrapper, copies all data into numpy inside one function, and then frees the scene and drops the wrappers with the
+garbage collector paused, so nothing reaches the freed cache (``Scene.free`` leaves it dangling in 0.0.5).
 """
 
 from __future__ import annotations
 
+import gc
+import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -46,15 +55,111 @@ def inbetween_name(channel: str, full_weight: float) -> str:
     return f"{channel}@{100.0 * float(full_weight):.6g}"
 
 
-class _Keep(list):
-    """Holds every ufbx wrapper object touched while reading (see the module note)."""
+class _SceneReader:
+    """One ufbx scene and every wrapper object read from it, kept balanced against the 0.0.5 bindings' missing
+    references (see the module note); :meth:`close` frees the scene.
 
-    def __call__(self, x):
-        self.append(x)
-        return x
+    All access to ufbx objects goes through :meth:`items` (an element list), :meth:`records` (a list of other
+    structs), :meth:`link` (an attribute that is an element or None), :meth:`get` (any other attribute, each read
+    once per wrapper) and :meth:`array` (a list copied into numpy)."""
+
+    def __init__(self, scene):
+        import ctypes
+
+        self.scene = scene
+        self._held: list = [scene]  # every ufbx object handed out, until close
+        self._attrs: dict[tuple[int, str], object] = {}  # (id(wrapper), attribute) → value; wrappers are held
+        self._incref = ctypes.pythonapi.Py_IncRef
+        self._incref.argtypes, self._incref.restype = [ctypes.py_object], None
+        # Probe: fetch one element twice. Bindings that return a new reference per fetch raise its count by one;
+        # 0.0.5 returns the cached wrapper borrowed (count unchanged), so every fetch needs the reference added.
+        nodes = self.get(scene, "nodes")
+        a = nodes[0]
+        before = sys.getrefcount(a)
+        b = nodes[0]
+        self.borrowed = sys.getrefcount(a) == before
+        self._hand_out(a)
+        self._hand_out(b)
+        del a, b
+
+    def _hand_out(self, obj):
+        """Account for one object the bindings' element lookup (``Element_from``) returned: hold it and, with the
+        borrowing bindings, add the reference the caller (a list item or an attribute slot) was given without."""
+        if obj is not None:
+            if self.borrowed:
+                self._incref(obj)
+            self._held.append(obj)
+        return obj
+
+    def items(self, lst) -> list:
+        """The elements of a ufbx element list (``MeshList``, ``NodeList``, …): each item is an element lookup."""
+        return [self._hand_out(lst[i]) for i in range(len(lst))]
+
+    def records(self, lst) -> list:
+        """The items of a ufbx list of structs that are not elements (``BlendKeyframe``…), a new wrapper per item,
+        held."""
+        out = [lst[i] for i in range(len(lst))]
+        self._held.extend(out)
+        return out
+
+    def link(self, owner, attr: str):
+        """``owner.attr`` where it is an element or None (``parent``, ``bone_node``, ``shape``): its first read per
+        wrapper fills the wrapper's slot by an element lookup, later reads are served from the slot."""
+        key = (id(owner), attr)
+        if key not in self._attrs:
+            self._attrs[key] = self._hand_out(getattr(owner, attr))
+        return self._attrs[key]
+
+    def get(self, owner, attr: str):
+        """``owner.attr`` that is not an element (numbers, strings, lists, structs, matrices), held."""
+        key = (id(owner), attr)
+        if key not in self._attrs:
+            value = getattr(owner, attr)
+            self._held.append(value)
+            self._attrs[key] = value
+        return self._attrs[key]
+
+    def array(self, owner, attr: str, dtype, cols: int | None = None) -> np.ndarray:
+        """``owner.attr`` (a ufbx list of numbers or vectors) copied into a new array, (n,) or (n, cols): nothing
+        keeps a buffer of the scene (a live buffer stops the scene from being freed)."""
+        a = np.array(self.get(owner, attr), dtype=dtype, copy=True)
+        return a.reshape(-1, cols) if cols else a.reshape(-1)
+
+    def close(self) -> None:
+        """Free the scene and drop every wrapper, the garbage collector paused in between: ufbx 0.0.5's
+        ``Scene.free`` leaves the element cache dangling until the last wrapper (and with it the cache's owner)
+        is gone, and a collection in that window would traverse it. Wrappers must not be referenced from
+        anywhere else by now; if they are, the scene is not freed (kept for the rest of the process) rather than
+        left to crash."""
+        scene, held = self.scene, self._held
+        self.scene, self._held, self._attrs = None, [], {}
+        if scene is None:
+            return
+        ctx = [r for r in gc.get_referents(scene) if type(r).__name__ == "Context"]
+        distinct = {id(o): o for o in held}.values()  # an element fetched twice is one wrapper
+        owners = sum(1 for o in distinct if any(r is ctx[0] for r in gc.get_referents(o))) if len(ctx) == 1 else -1
+        # the owner's references: the wrappers held here (the scene among them), plus `ctx` and getrefcount's own
+        if owners < 0 or sys.getrefcount(ctx[0]) != owners + 2:
+            _UNFREED.append((scene, held))  # an unexpected holder: never freed, never collected, never crashes
+            self._incref(_UNFREED)
+            return
+        enabled = gc.isenabled()
+        gc.disable()
+        try:
+            scene.free()
+            del scene, distinct
+            held.clear()
+            del held, ctx  # the last references: the element cache's owner goes now
+        finally:
+            if enabled:
+                gc.enable()
 
 
-def _load_scene(p: Path, unit_m: float | None):
+#: scenes that could not be freed safely (see :meth:`_SceneReader.close`); empty in normal use
+_UNFREED: list = []
+
+
+def _load_scene(p: Path):
     import ufbx
 
     opts = dict(target_axes=ufbx.axes_right_handed_y_up, target_unit_meters=1.0, file_format=ufbx.FileFormat.FBX,
@@ -69,6 +174,17 @@ def _load_scene(p: Path, unit_m: float | None):
 def _matrix(m) -> np.ndarray:
     """A ufbx Matrix (4 columns of Vec3) as a 4×3 array A: world = v @ A[:3] + A[3]."""
     return np.asarray([tuple(c) for c in m], dtype=np.float64)
+
+
+def _clear_traceback_frames(exc: BaseException | None) -> None:
+    """Drop the local variables (ufbx wrappers among them) of the finished frames in ``exc``'s tracebacks and
+    chained exceptions, so the scene can be freed while the exception propagates."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if exc.__traceback__ is not None:
+            traceback.clear_frames(exc.__traceback__)
+        exc = exc.__cause__ or exc.__context__
 
 
 def load_fbx_rig(path, *, unit_m: float | None = None, name: str | None = None) -> BlendshapeRig:
@@ -87,64 +203,73 @@ def load_fbx_rig(path, *, unit_m: float | None = None, name: str | None = None) 
     p = Path(path)
     if not p.is_file():
         raise KDInputError(f"{p}: file not found")
-    keep = _Keep()
-    scene = keep(_load_scene(p, unit_m))
-    meta = keep(scene.metadata)
-    if int(meta.version) < FBX_MIN_VERSION:
-        raise KDInputError(f"{p}: FBX version {meta.version / 1000:g} ({'ASCII' if meta.ascii else 'binary'}); "
+    reader = _SceneReader(_load_scene(p))
+    try:
+        data = _read_scene(reader, p, unit_m)
+    except BaseException as e:
+        _clear_traceback_frames(e)
+        raise
+    finally:
+        reader.close()
+    return _build_rig(p, data, unit_m, name)
+
+
+def _read_scene(sc: _SceneReader, p: Path, unit_m: float | None) -> dict:
+    """Everything the rig needs, copied out of the scene into numpy arrays and Python numbers and strings (no
+    ufbx object in the result)."""
+    scene = sc.scene
+    meta = sc.get(scene, "metadata")
+    version, ascii_ = int(sc.get(meta, "version")), bool(sc.get(meta, "ascii"))
+    if version < FBX_MIN_VERSION:
+        raise KDInputError(f"{p}: FBX version {version / 1000:g} ({'ASCII' if ascii_ else 'binary'}); "
                            "expected FBX 7.x (re-export with FBX 2011 or newer)")
-    settings = keep(scene.settings)
-    file_unit = float(settings.original_unit_meters) or 0.01  # FBX without UnitScaleFactor: centimetres
+    file_unit = float(sc.get(sc.get(scene, "settings"), "original_unit_meters")) or 0.01  # no UnitScaleFactor: cm
     factor = 1.0 if unit_m is None else float(unit_m) / file_unit  # ufbx already converted by the file's unit
-    meshes = [keep(m) for m in keep(scene.meshes)]
+    meshes = sc.items(sc.get(scene, "meshes"))
     if not meshes:
         raise KDInputError(f"{p}: the file holds no meshes; expected at least one mesh (a face or an avatar)")
-    neutral, counts, corners, uvs, parts, part_names = [], [], [], [], [], []
+    out_meshes = []  # per mesh: neutral (n, 3) [m], polygon counts, corners (mesh-local), corner UVs or None, name
     channels: dict[str, dict] = {}  # channel name → {"weights": (f_1..f_n), "targets": [(mesh, rows, offsets)…]}
-    skin_parts = []  # (vertex offset, n, {bone element id: (vertex indices, weights)})
+    skin_parts = []  # (mesh index, {bone element id: (vertex indices, weights)})
     bones: dict[int, object] = {}  # element id → bone node
     bind_pivot: dict[int, np.ndarray] = {}
-    offset = 0
     for mi, m in enumerate(meshes):
-        instances = keep(m.instances)
-        node = keep(instances[0]) if len(instances) else None
-        A = _matrix(keep(node.geometry_to_world)) if node is not None else np.vstack([np.eye(3), np.zeros(3)])
+        instances = sc.items(sc.get(m, "instances"))
+        node = instances[0] if instances else None
+        A = _matrix(sc.get(node, "geometry_to_world")) if node is not None else np.vstack([np.eye(3), np.zeros(3)])
         A[:3] *= factor
         A[3] *= factor
-        v = np.asarray(keep(m.vertices), dtype=np.float64).reshape(-1, 3) @ A[:3] + A[3]
-        n = len(v)
-        faces = np.asarray(keep(m.faces), dtype=np.int64).reshape(-1, 2)  # (index_begin, num_indices)
-        idx = np.asarray(keep(m.vertex_indices), dtype=np.int64)
+        v = sc.array(m, "vertices", np.float64, 3) @ A[:3] + A[3]
+        faces = sc.array(m, "faces", np.int64, 2)  # (index_begin, num_indices)
+        idx = sc.array(m, "vertex_indices", np.int64)
         ok = faces[:, 1] >= 3  # points and lines are no surface
         starts, nums = faces[ok, 0], faces[ok, 1]
         take = np.repeat(starts - np.concatenate([[0], np.cumsum(nums)[:-1]]), nums) + np.arange(int(nums.sum()))
-        neutral.append(v)
-        counts.append(nums)
-        corners.append(idx[take] + offset)
-        uv = keep(m.vertex_uv)
-        if uv.exists:
-            vals = np.asarray(keep(uv.values), dtype=np.float64).reshape(-1, 2)
-            uvs.append(vals[np.asarray(keep(uv.indices), dtype=np.int64)[take]])
-        part_names.append(str(node.name if node is not None and node.name else m.name or f"mesh{mi}"))
-        parts.append(np.full(n, mi, dtype=np.int64))
-        for bd in keep(m.blend_deformers):
-            keep(bd)
-            prefix = f"{bd.name}." if bd.name else None
-            for ch in keep(bd.channels):
-                keep(ch)
-                cname = str(ch.name)
+        uv = sc.get(m, "vertex_uv")
+        uv_corners = None
+        if sc.get(uv, "exists"):
+            vals = sc.array(uv, "values", np.float64, 2)
+            uv_corners = vals[sc.array(uv, "indices", np.int64)[take]]
+        node_name = str(sc.get(node, "name")) if node is not None else ""
+        part = node_name or str(sc.get(m, "name")) or f"mesh{mi}"
+        out_meshes.append((v, nums, idx[take], uv_corners, part))
+        for bd in sc.items(sc.get(m, "blend_deformers")):
+            bd_name = str(sc.get(bd, "name"))
+            prefix = f"{bd_name}." if bd_name else None
+            for ch in sc.items(sc.get(bd, "channels")):
+                cname = str(sc.get(ch, "name"))
                 if prefix and cname.startswith(prefix) and len(cname) > len(prefix):
                     cname = cname[len(prefix):]
-                keys = [keep(k) for k in keep(ch.keyframes)]
+                keys = sc.records(sc.get(ch, "keyframes"))
                 if not keys:
                     continue
-                full = tuple(float(k.target_weight) for k in keys)
+                full = tuple(float(sc.get(k, "target_weight")) for k in keys)
                 targets = []
                 for k in keys:
-                    shape = keep(k.shape)
-                    rows = np.asarray(keep(shape.offset_vertices), dtype=np.int64)
-                    d = np.asarray(keep(shape.position_offsets), dtype=np.float64).reshape(-1, 3) @ A[:3]
-                    targets.append((rows + offset, d))
+                    shape = sc.link(k, "shape")
+                    rows = sc.array(shape, "offset_vertices", np.int64)
+                    d = sc.array(shape, "position_offsets", np.float64, 3) @ A[:3]
+                    targets.append((mi, rows, d))
                 entry = channels.setdefault(cname, {"weights": full, "targets": []})
                 if not np.allclose(entry["weights"], full):
                     raise KDInputError(f"{p}: blend-shape channel {cname!r} has in-betweens at "
@@ -152,37 +277,73 @@ def load_fbx_rig(path, *, unit_m: float | None = None, name: str | None = None) 
                                        f"{[100 * w for w in full]} % on another; expected the same")
                 entry["targets"].append(targets)
         clusters = {}
-        for sd in keep(m.skin_deformers):
-            keep(sd)
-            for cl in keep(sd.clusters):
-                keep(cl)
-                bone = keep(cl.bone_node)
+        for sd in sc.items(sc.get(m, "skin_deformers")):
+            for cl in sc.items(sc.get(sd, "clusters")):
+                bone = sc.link(cl, "bone_node")
                 if bone is None:
                     continue
-                eid = int(bone.element_id)
+                eid = int(sc.get(bone, "element_id"))
                 bones[eid] = bone
-                B = _matrix(keep(cl.bind_to_world))
+                B = _matrix(sc.get(cl, "bind_to_world"))
                 bind_pivot.setdefault(eid, B[3] * factor)
-                vi = np.asarray(keep(cl.vertices), dtype=np.int64)
-                wi = np.asarray(keep(cl.weights), dtype=np.float64)
+                vi = sc.array(cl, "vertices", np.int64)
+                wi = sc.array(cl, "weights", np.float64)
                 if eid in clusters:
                     vi, wi = np.concatenate([clusters[eid][0], vi]), np.concatenate([clusters[eid][1], wi])
                 clusters[eid] = (vi, wi)
-        skin_parts.append((offset, n, clusters))
-        offset += n
-    x0 = np.concatenate(neutral)
+        skin_parts.append((mi, clusters))
+    return dict(file_unit=file_unit, meshes=out_meshes, channels=channels, skin_parts=skin_parts,
+                joints=_joints(sc, bones, bind_pivot, factor))
+
+
+def _joints(sc: _SceneReader, bones: dict, bind_pivot: dict, factor: float) -> dict | None:
+    """The skinned bones and their whole ancestry (so neck joints without weights count), as plain data: element
+    ids, names, parent ids (-1: none) and pivots [m]; None without skin."""
+    if not bones:
+        return None
+    nodes: dict[int, object] = dict(bones)
+    parent_of: dict[int, int] = {}
+    for eid, node in list(bones.items()):
+        cur, cur_id = node, eid
+        while True:
+            par = sc.link(cur, "parent")
+            if par is None or sc.get(par, "is_root"):
+                parent_of[cur_id] = -1
+                break
+            pid = int(sc.get(par, "element_id"))
+            parent_of[cur_id] = pid
+            if pid in nodes:
+                break
+            nodes[pid] = par
+            cur, cur_id = par, pid
+    ids = list(nodes)
+    pos = np.zeros((len(ids), 3))
+    for j, e in enumerate(ids):
+        if e in bind_pivot:
+            pos[j] = bind_pivot[e]
+        else:  # an unskinned ancestor: its world position in the file's pose (ufbx: metres, y up)
+            pos[j] = _matrix(sc.get(nodes[e], "node_to_world"))[3] * factor
+    return dict(ids=ids, names=[str(sc.get(nodes[e], "name")) for e in ids],
+                parents=[parent_of.get(e, -1) for e in ids], positions=pos)
+
+
+def _build_rig(p: Path, data: dict, unit_m: float | None, name: str | None) -> BlendshapeRig:
+    """The rig from :func:`_read_scene`'s plain data."""
+    meshes = data["meshes"]
+    offsets = np.concatenate([[0], np.cumsum([len(m[0]) for m in meshes])])
+    x0 = np.concatenate([m[0] for m in meshes])
     check_finite(x0, f"{p}: vertex positions")
     N = len(x0)
     shape_names, deltas, inbetweens = [], [], []
-    for cname, entry in channels.items():
+    for cname, entry in data["channels"].items():
         full = entry["weights"]
         order = np.argsort(full)
         rows_here = []
         for rank, ki in enumerate(order):
             d = np.zeros((N, 3))
             for targets in entry["targets"]:
-                r, dv = targets[ki]
-                np.add.at(d, r, dv)
+                mi, r, dv = targets[ki]
+                np.add.at(d, r + offsets[mi], dv)
             last = rank == len(order) - 1
             shape_names.append(cname if last else inbetween_name(cname, full[ki]))
             deltas.append(d)
@@ -192,57 +353,38 @@ def load_fbx_rig(path, *, unit_m: float | None = None, name: str | None = None) 
             inbetweens.append((rows_here[-1], tuple(rows_here), weights_sorted))
     D = np.stack(deltas) if deltas else np.zeros((0, N, 3))
     check_finite(D, f"{p}: blend-shape offsets")
-    skeleton = _skeleton(p, bones, bind_pivot, skin_parts, N, keep, factor)
-    count = np.concatenate(counts)
-    uv_corners = np.concatenate(uvs) if len(uvs) == len(meshes) and uvs else None
+    skeleton = _skeleton(p, data["joints"], data["skin_parts"], offsets, N)
+    count = np.concatenate([m[1] for m in meshes])
+    corners_all = np.concatenate([m[2] + offsets[mi] for mi, m in enumerate(meshes)])
+    uvs = [m[3] for m in meshes]
+    uv_corners = np.concatenate(uvs) if all(u is not None for u in uvs) else None
     from .obj import triangulate
 
-    corners_all = np.concatenate(corners)
     try:
         return BlendshapeRig.create(
             x0, D, triangulate(count, corners_all), shape_names, skeleton=skeleton, name=name or p.stem,
-            polygons=(count, corners_all), uvs=uv_corners, part_names=part_names,
-            vertex_parts=np.concatenate(parts), source_unit_m=file_unit if unit_m is None else float(unit_m),
+            polygons=(count, corners_all), uvs=uv_corners, part_names=[m[4] for m in meshes],
+            vertex_parts=np.repeat(np.arange(len(meshes)), np.diff(offsets)),
+            source_unit_m=data["file_unit"] if unit_m is None else float(unit_m),
             check_units=False, inbetweens=inbetweens)
     except KDInputError as e:
         raise KDInputError(f"{p}: {e}") from None
 
 
-def _skeleton(p: Path, bones: dict, bind_pivot: dict, skin_parts, N: int, keep: _Keep, factor: float):
-    """The head-chain skeleton of the file's skinned bones (their whole ancestry, so neck joints without weights
-    count), or None without skin or head joint."""
-    if not bones:
+def _skeleton(p: Path, joints: dict | None, skin_parts, offsets: np.ndarray, N: int):
+    """The head-chain skeleton of the file's skinned bones, or None without skin or head joint."""
+    if joints is None:
         return None
-    nodes: dict[int, object] = dict(bones)
-    parent_of: dict[int, int] = {}
-    for eid, node in list(bones.items()):
-        cur, cur_id = node, eid
-        while True:
-            par = keep(cur.parent)
-            if par is None or par.is_root:
-                parent_of[cur_id] = -1
-                break
-            pid = int(par.element_id)
-            parent_of[cur_id] = pid
-            if pid in nodes:
-                break
-            nodes[pid] = par
-            cur, cur_id = par, pid
-    ids = list(nodes)
+    ids = joints["ids"]
     index = {eid: j for j, eid in enumerate(ids)}
-    names = [str(nodes[e].name) for e in ids]
-    parents = np.array([index.get(parent_of.get(e, -1), -1) for e in ids], dtype=np.int64)
-    pos = np.zeros((len(ids), 3))
-    for j, e in enumerate(ids):
-        if e in bind_pivot:
-            pos[j] = bind_pivot[e]
-        else:  # an unskinned ancestor: its world position in the file's pose (ufbx: metres, y up)
-            pos[j] = _matrix(keep(nodes[e].node_to_world))[3] * factor
+    parents = np.array([index.get(e, -1) for e in joints["parents"]], dtype=np.int64)
     W = np.zeros((N, len(ids)))
-    for off, n, clusters in skin_parts:
+    for mi, clusters in skin_parts:
+        off, n = offsets[mi], offsets[mi + 1] - offsets[mi]
         for eid, (vi, wi) in clusters.items():
             if len(vi) and (vi.min() < 0 or vi.max() >= n):
-                raise KDInputError(f"{p}: skin cluster of bone {nodes[eid].name!r}: vertex index out of range")
+                raise KDInputError(f"{p}: skin cluster of bone {joints['names'][index[eid]]!r}: vertex index out "
+                                   "of range")
             np.add.at(W[:, index[eid]], vi + off, wi)
     check_finite(W, f"{p}: skin weights")
-    return head_chain_skeleton(names, parents, pos, W, where=str(p))
+    return head_chain_skeleton(joints["names"], parents, joints["positions"], W, where=str(p))

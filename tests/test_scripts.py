@@ -67,3 +67,34 @@ def test_build_makehuman_body_rebuilds_the_committed_avatar(tmp_path):
         assert sorted(new.files) == sorted(old.files)
         for k in old.files:
             np.testing.assert_array_equal(new[k], old[k], err_msg=k)
+
+
+BUILDERS = ("build_makehuman_head", "build_makehuman_arm", "build_makehuman_body")
+
+
+def test_every_makehuman_builder_writes_only_its_licence_section(tmp_path):
+    """Each builder replaces its own section of LICENSES.md and keeps the others' (the head builder used to overwrite
+    the whole file, deleting the arm and body sections); the committed file is what the three builders write."""
+    committed = (SCRIPTS.parent / "meshes" / "LICENSES.md").read_text()
+    mods = {name: load(name) for name in BUILDERS}
+    headings = [m.LICENSE_SECTION.splitlines()[0] for m in mods.values()]
+    lic = tmp_path / "LICENSES.md"
+    lic.write_text(committed)
+    for name in (*BUILDERS, *reversed(BUILDERS), "build_makehuman_head"):
+        mods[name].update_licenses(lic)
+        assert lic.read_text() == committed, name  # a fixed point: nothing else changes, nothing is lost
+    # a stale head section between the others is replaced in place, and a foreign section is kept
+    stale = committed.replace(mods["build_makehuman_head"].LICENSE_SECTION, "## makehuman_head.npz\n\nold text\n") \
+        + "\n## hat.npz\n\nHat.\n"
+    lic.write_text(stale)
+    mods["build_makehuman_head"].update_licenses(lic)
+    text = lic.read_text()
+    assert "old text" not in text and text == committed + "\n## hat.npz\n\nHat.\n"
+    # a missing file, built in any order, gets the title and each section once
+    lic.unlink()
+    for name in ("build_makehuman_body", "build_makehuman_head", "build_makehuman_arm"):
+        mods[name].update_licenses(lic)
+    text = lic.read_text()
+    assert text.startswith("# Licences of the assets in meshes/\n\n")
+    assert all(text.count(h + "\n") == 1 for h in headings)
+    assert all(m.LICENSE_SECTION in text for m in mods.values())

@@ -79,9 +79,10 @@ def rigid_pieces(rig, *, max_strain: float = RIGID_MAX_STRAIN) -> np.ndarray:
     return out
 
 
-def part_vertices(rig, spec, *, where: str = "part") -> np.ndarray:
+def part_vertices(rig, spec, *, where: str = "part", channel_map: dict | None = None) -> np.ndarray:
     """Vertex indices (G,) of ``spec``: a part name of the rig (OBJ group, glTF primitive), ``"piece:<k>"`` (the k-th
-    connected piece, by size), or anything :func:`~kdfaces.rig.groups.vertex_group` accepts."""
+    connected piece, by size), or anything :func:`~kdfaces.rig.groups.vertex_group` accepts; ``channel_map`` (a
+    shot's ``[animation.map]``) finds a named group's shapes on a rig with names of its own, as there."""
     from .groups import vertex_group
 
     if isinstance(spec, str) and spec in rig.part_names:
@@ -97,7 +98,7 @@ def part_vertices(rig, spec, *, where: str = "part") -> np.ndarray:
             raise KDInputError(f"{where}: rig {rig.name!r} has {count} pieces, no piece {k}")
         return np.flatnonzero(labels == order[k])
     try:
-        return vertex_group(rig, spec, where=where)
+        return vertex_group(rig, spec, where=where, channel_map=channel_map)
     except KDInputError as e:
         if isinstance(spec, str) and rig.part_names:
             raise KDInputError(f"{e}; or one of the rig's parts {list(rig.part_names)}") from None

@@ -156,7 +156,7 @@ class Shot:
     def rigid(self) -> np.ndarray:
         """(N,) bool: vertices that follow x_K exactly (``[dynamics.parts]`` rigid parts and, with ``auto_rigid``,
         the pieces no shape deforms)."""
-        return rigid_vertices(self.dynamics, self.rig, where=f"{self.path}: dynamics")
+        return rigid_vertices(self.dynamics, self.rig, where=f"{self.path}: dynamics", channel_map=self.channel_map)
 
     def model(self, **overrides):
         """The face dynamics model of the shot's ``[dynamics]`` (keyword overrides for FaceModel.create)."""
@@ -366,16 +366,18 @@ def settle_time(dynamics: dict, rig, *, where: str = "dynamics", channel_map: di
         return base
     out = np.broadcast_to(np.asarray(base, dtype=np.float64), (rig.num_vertices,)).copy()
     for name, p in own.items():
-        out[part_vertices(rig, name, where=f"{where}.parts.{name}")] = float(p["settle_time_s"])
+        idx = part_vertices(rig, name, where=f"{where}.parts.{name}", channel_map=channel_map)
+        out[idx] = float(p["settle_time_s"])
     return out
 
 
-def rigid_vertices(dynamics: dict, rig, *, where: str = "dynamics") -> np.ndarray:
-    """(N,) bool: the ``[dynamics]`` table's rigid vertices (see :meth:`Shot.rigid`)."""
+def rigid_vertices(dynamics: dict, rig, *, where: str = "dynamics", channel_map: dict | None = None) -> np.ndarray:
+    """(N,) bool: the ``[dynamics]`` table's rigid vertices (see :meth:`Shot.rigid`; ``channel_map`` as for
+    :func:`settle_time`)."""
     mask = rigid_pieces(rig) if dynamics.get("auto_rigid", True) else np.zeros(rig.num_vertices, dtype=bool)
     for name, p in (dynamics.get("parts") or {}).items():
         if p.get("rigid") is not None:
-            mask[part_vertices(rig, name, where=f"{where}.parts.{name}")] = bool(p["rigid"])
+            mask[part_vertices(rig, name, where=f"{where}.parts.{name}", channel_map=channel_map)] = bool(p["rigid"])
     return mask
 
 
@@ -385,7 +387,7 @@ def dynamics_model(dynamics: dict, rig, *, where: str = "dynamics", channel_map:
     from ..dynamics import FaceModel
 
     d = {**DYNAMICS_DEFAULTS, **dynamics}
-    rigid = rigid_vertices(d, rig, where=where)
+    rigid = rigid_vertices(d, rig, where=where, channel_map=channel_map)
     kwargs = dict(settle_time_s=settle_time(d, rig, where=where, channel_map=channel_map),
                   damping_ratio=float(d["damping_ratio"]),
                   shape_matching_alpha=float(d["shape_matching_alpha"]), damping_mode=d["damping_mode"],

@@ -2,10 +2,11 @@
 
 Import: the base mesh's ``POSITION`` plus each morph target's ``POSITION`` deltas become a
 :class:`~kdfaces.rig.BlendshapeRig`; shape names come from ``mesh.extras.targetNames`` (the convention of Blender
-and three.js). All triangle primitives of the mesh are concatenated. Accessors may be strided (``byteStride``),
-sparse, or normalized integers (``KHR_mesh_quantization``). The world transform of the first node that
-instances the mesh is applied, so positions are in scene metres; glTF is y-up in metres like kdfaces, so no
-other conversion happens. Weight animation channels (``target.path == "weights"``) become a
+and three.js); in-betweens from ``mesh.extras.kdfaces_inbetweens`` (written by :func:`save_gltf`; without it
+the rig is linear in its targets, whatever their names). All triangle primitives of the mesh are concatenated.
+Accessors may be strided (``byteStride``), sparse, or normalized integers (``KHR_mesh_quantization``). The world
+transform of the first node that instances the mesh is applied, so positions are in scene metres; glTF is y-up in
+metres like kdfaces, so no other conversion happens. Weight animation channels (``target.path == "weights"``) become a
 :class:`~kdfaces.motion.trajectory.FaceAnimation` with one :class:`~kdfaces.motion.trajectory.ShapeTrack` (LINEAR →
 ``linear``, CUBICSPLINE → ``hermite``). A skin on the mesh's node (joints, inverse bind matrices,
 ``JOINTS_0``/``WEIGHTS_0``) becomes the head-chain :class:`~kdfaces.rig.Skeleton`
@@ -36,7 +37,7 @@ from .atomic import write_bytes_atomic
 from .obj import triangulate, vertex_normals
 from .pointcache import infer_fps
 
-__all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf"]
+__all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf", "INBETWEENS_EXTRAS"]
 
 _COMPONENTS = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"), 5123: np.dtype("<u2"),
                5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
@@ -220,6 +221,54 @@ def _target_names(doc: _Document, m, k: int) -> list[str]:
     return [f"target{i}" for i in range(k)]
 
 
+#: ``mesh.extras`` key of the in-between metadata :func:`save_gltf` writes: a list of ``{"channel": name,
+#: "targets": [names], "full_weights": [numbers]}``, one per channel with in-betweens
+#: (:attr:`~kdfaces.rig.BlendshapeRig.inbetweens`, by target name instead of row).
+INBETWEENS_EXTRAS = "kdfaces_inbetweens"
+
+
+def _read_inbetweens(doc: _Document, m, names: list[str]) -> tuple:
+    """The in-betweens of mesh ``m`` from ``extras.kdfaces_inbetweens`` (rows into ``names``), or () when the mesh
+    has none: a file without the metadata is linear in its morph targets, whatever its target names look like
+    (``jawOpen@50`` is never taken for an in-between by its name)."""
+    entries = (m.extras or {}).get(INBETWEENS_EXTRAS) if isinstance(m.extras, dict) else None
+    if entries is None:
+        return ()
+    where = f"{doc.path}: mesh {m.name!r} extras.{INBETWEENS_EXTRAS}"
+    if not isinstance(entries, list):
+        raise KDInputError(f"{where}: expected a list of {{channel, targets, full_weights}} objects, got "
+                           f"{type(entries).__name__}")
+    row = {n: i for i, n in enumerate(names)}
+    out = []
+    for i, e in enumerate(entries):
+        ok = isinstance(e, dict) and isinstance(e.get("channel"), str) and isinstance(e.get("targets"), list) and \
+            isinstance(e.get("full_weights"), list) and len(e["targets"]) == len(e["full_weights"]) and \
+            all(isinstance(t, str) for t in e["targets"]) and \
+            all(isinstance(f, int | float) and not isinstance(f, bool) for f in e["full_weights"])
+        if not ok:
+            raise KDInputError(f"{where}[{i}]: expected {{\"channel\": name, \"targets\": [names], "
+                               f"\"full_weights\": [numbers]}} with one full weight per target, got {e!r}")
+        unknown = [t for t in [e["channel"], *e["targets"]] if t not in row]
+        if unknown:
+            raise KDInputError(f"{where}[{i}]: {unknown[0]!r} is not one of the mesh's extras.targetNames")
+        out.append((row[e["channel"]], tuple(row[t] for t in e["targets"]), tuple(float(f) for f in e["full_weights"])))
+    return tuple(out)
+
+
+def _channel_weights(values: np.ndarray, inbetweens) -> np.ndarray:
+    """Channel weights from target weights ``values`` (…, K) of a rig with ``inbetweens``: the inverse of
+    :meth:`~kdfaces.rig.BlendshapeRig.expand_weights` on its image. Expanded weights put 1 − t and t on two
+    neighbouring targets (full weights f_(s−1), f_s; f_0 = 0 is the neutral), so c = Σ_i f_i w_i over the
+    channel's targets recovers c = f_(s−1) + t (f_s − f_(s−1)) exactly; the in-between columns become 0 (the
+    channel column carries c). Linear in ``values``, so key values and spline tangents map alike."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    for channel, rows, full in inbetweens:
+        c = values[..., list(rows)] @ np.asarray(full, dtype=np.float64)
+        out[..., list(rows)] = 0.0
+        out[..., channel] = c
+    return out
+
+
 def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     m = doc.gltf.meshes[mesh_index]
     label = f"mesh {m.name or mesh_index!r}"
@@ -281,6 +330,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
             x0 = x0 @ w[:3, :3].T + w[:3, 3]
             dx = dx @ w[:3, :3].T
     names = _target_names(doc, m, k)
+    inbetweens = _read_inbetweens(doc, m, names)
     name = m.name or doc.path.stem
     vertex_parts = np.concatenate(parts)
     skin = _read_skin(doc, mesh_index, m, apply_node_transform=apply_node_transform)
@@ -288,7 +338,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
         uv_corners = None if uv is None else uv[f].reshape(-1, 2)
         skeleton = None if skin is None else head_chain_skeleton(*skin, where=str(doc.path))
         return _rig(doc, x0, dx, f, names, name=name, uvs=uv_corners, part_names=part_names,
-                    vertex_parts=vertex_parts, skeleton=skeleton)
+                    vertex_parts=vertex_parts, skeleton=skeleton, inbetweens=inbetweens)
     n = int(source.max()) + 1  # merge the vertices split at UV seams back (written by save_gltf)
     neutral, deltas, vparts = np.zeros((n, 3)), np.zeros((k, n, 3)), np.zeros(n, dtype=np.int64)
     neutral[source], deltas[:, source], vparts[source] = x0, dx, vertex_parts
@@ -299,7 +349,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
         w[source] = skin[3]
         skeleton = head_chain_skeleton(*skin[:3], w, where=str(doc.path))
     return _rig(doc, neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
-                vertex_parts=vparts, skeleton=skeleton)
+                vertex_parts=vparts, skeleton=skeleton, inbetweens=inbetweens)
 
 
 def _read_skin(doc: _Document, mesh_index: int, m, *, apply_node_transform: bool):
@@ -390,7 +440,8 @@ def _pick_animation(doc: _Document, mesh_index: int, animation):
                        f"animations with one: {[g.animations[ai].name or ai for ai, _ in found]}")
 
 
-def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animation, fps) -> FaceAnimation | None:
+def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animation, fps,
+                    inbetweens=()) -> FaceAnimation | None:
     picked = _pick_animation(doc, mesh_index, animation)
     if picked is None:
         return None
@@ -409,6 +460,8 @@ def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animat
         raise KDInputError(f"{doc.path}: {label}: {len(out)} weight values for {m} keys × {k} morph targets"
                            f"{' × 3 (cubic spline)' if interp == 'CUBICSPLINE' else ''} (mismatched counts)")
     where = f"{doc.path}: {label}"
+    if inbetweens:  # the file animates target weights (any glTF player's); the track holds channel weights
+        out = _channel_weights(out.reshape(-1, k), inbetweens).reshape(-1)
     if interp == "LINEAR":
         curve = KeyframeCurve.create(times, out.reshape(m, k), interpolation="linear", where=where)
     elif interp == "CUBICSPLINE":
@@ -445,7 +498,8 @@ def load_gltf(path, *, mesh: int | str | None = None, animation: int | str | Non
     doc = _Document(path)
     index = _pick_mesh(doc, mesh)
     rig = _read_rig(doc, index, apply_node_transform=apply_node_transform)
-    return rig, _read_animation(doc, index, list(rig.shape_names), animation=animation, fps=fps)
+    return rig, _read_animation(doc, index, list(rig.shape_names), animation=animation, fps=fps,
+                                inbetweens=rig.inbetweens)
 
 
 def load_gltf_rig(path, *, mesh: int | str | None = None, apply_node_transform: bool = True) -> BlendshapeRig:
@@ -555,10 +609,15 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
         rig: the rig; neutral and deltas are stored as float32 [m], faces as uint32, names in
             ``mesh.extras.targetNames``, smooth vertex normals as ``NORMAL`` (so other tools shade it smoothly),
             UVs as ``TEXCOORD_0`` (vertices split where UVs have seams; ``extras.kdfaces_source_vertices`` names the
-            accessor mapping them back, which :func:`load_gltf_rig` uses). The skeleton is not written.
+            accessor mapping them back, which :func:`load_gltf_rig` uses). In-betweens (an FBX rig's
+            ``jawOpen@50``) are written as morph targets plus ``mesh.extras.kdfaces_inbetweens``
+            (:data:`INBETWEENS_EXTRAS`), which :func:`load_gltf_rig` reads back; other tools see plain morph
+            targets. The skeleton is not written.
         path: output file; the extension picks the container.
         animation: optional; its shape weights are sampled at its frame times and written as one LINEAR weights
-            channel (head rotations are not written).
+            channel (head rotations are not written). With in-betweens these are the target weights (expanded
+            through the in-betweens, so any glTF player shows the motion); :func:`load_gltf` turns them back into
+            channel weights.
         sparse: store morph targets that move few vertices as sparse accessors.
     """
     import pygltflib
@@ -576,6 +635,10 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
     attributes = pygltflib.Attributes(POSITION=b.accessor(x, "VEC3", target=_ARRAY_BUFFER, bounds=x),
                                       NORMAL=b.accessor(normals, "VEC3", target=_ARRAY_BUFFER))
     extras = {"targetNames": list(rig.shape_names)}
+    if rig.inbetweens:
+        extras[INBETWEENS_EXTRAS] = [
+            {"channel": rig.shape_names[c], "targets": [rig.shape_names[r] for r in rows], "full_weights": list(full)}
+            for c, rows, full in rig.inbetweens]
     if uv is not None:  # glTF's UV origin is the top-left corner: v flips
         st = np.ascontiguousarray(np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1), dtype="<f4")
         attributes.TEXCOORD_0 = b.accessor(st, "VEC2", target=_ARRAY_BUFFER)

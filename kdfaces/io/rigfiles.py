@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from .obj import obj_face_key, read_obj_mesh, read_obj_shape, write_obj_mesh
 __all__ = [
     "DEFAULT_RIG_PATH", "UNITS", "RigUnitsWarning", "unit_scale", "load_default_rig", "load_rig", "load_npz",
     "save_npz", "read_obj", "write_obj", "load_obj_folder", "save_obj_folder", "load_makehuman",
+    "LostInbetweensWarning", "INBETWEEN_FIELDS",
 ]
 
 DEFAULT_RIG_PATH = Path(os.environ.get("KDFACES_MESHES", Path(__file__).resolve().parents[2] / "meshes")) / \
@@ -53,6 +55,10 @@ def unit_scale(units: str | None = None, unit_m: float | None = None, *, default
             raise KDInputError(f"{where}.{name}: expected a positive number of metres per file unit, got {scale!r}")
         return float(scale)
     return float(default)
+
+
+class LostInbetweensWarning(UserWarning):
+    """A rig with in-betweens was written to a format that cannot keep them (an OBJ folder)."""
 
 
 def _require_file(path) -> Path:
@@ -206,6 +212,8 @@ def load_npz(path) -> BlendshapeRig:
             if unit.size != 1:
                 raise KDInputError(f"{p}: field 'source_unit_m': expected one number (metres per file unit)")
             extra["source_unit_m"] = float(unit.reshape(-1)[0])
+        if "inbetween_channels" in d.files:
+            extra["inbetweens"] = _read_inbetweens(p, d.files, field)
         arrays = field("neutral", np.float64), field("deltas", np.float32), field("faces", np.int64)
         shape_names = strings("shape_names")
         try:
@@ -214,8 +222,34 @@ def load_npz(path) -> BlendshapeRig:
             raise KDInputError(f"{p}: {e}") from None
 
 
+#: The npz fields of a rig's in-betweens (:attr:`BlendshapeRig.inbetweens`), flattened: channel c has the channel
+#: row ``inbetween_channels[c]`` and the ``inbetween_counts[c]`` targets that follow in ``inbetween_rows`` and
+#: ``inbetween_full_weights`` (float64, so they round-trip exactly).
+INBETWEEN_FIELDS = ("inbetween_channels", "inbetween_counts", "inbetween_rows", "inbetween_full_weights")
+
+
+def _read_inbetweens(p: Path, files, field) -> tuple:
+    """The in-betweens of an npz rig (member names ``files``; ``field(name, dtype)`` reads one) from its
+    :data:`INBETWEEN_FIELDS`; :meth:`BlendshapeRig.create` checks that the rows are shapes of the rig and that the
+    full weights increase."""
+    missing = [f for f in INBETWEEN_FIELDS if f not in files]
+    if missing:
+        raise KDInputError(f"{p}: npz rig has inbetween_channels but lacks field(s) {missing}")
+    channels, counts = field("inbetween_channels", np.int64), field("inbetween_counts", np.int64)
+    rows, full = field("inbetween_rows", np.int64), field("inbetween_full_weights", np.float64)
+    if channels.ndim != 1 or counts.shape != channels.shape or (counts < 1).any() or rows.ndim != 1 or \
+            full.shape != rows.shape or int(counts.sum()) != len(rows):
+        raise KDInputError(f"{p}: fields {list(INBETWEEN_FIELDS)}: expected one channel row and a target count ≥ 1 "
+                           f"per channel, and as many target rows and full weights as the counts add up to; got "
+                           f"{len(channels)} channels, counts {counts.tolist()}, {len(rows)} rows and {len(full)} "
+                           "weights")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    return tuple((int(c), tuple(int(r) for r in rows[a:b]), tuple(float(f) for f in full[a:b]))
+                 for c, a, b in zip(channels, starts[:-1], starts[1:]))
+
+
 def save_npz(rig: BlendshapeRig, path) -> Path:
-    """Write ``rig`` to an npz (atomically), with its polygons, UVs and parts when it has them."""
+    """Write ``rig`` to an npz (atomically), with its polygons, UVs, parts and in-betweens when it has them."""
     fields = dict(name=np.array(rig.name), neutral=rig.neutral, deltas=rig.deltas, faces=rig.faces,
                   shape_names=np.array(rig.shape_names), source_unit_m=np.array(rig.source_unit_m))
     if rig.skeleton is not None:
@@ -228,6 +262,12 @@ def save_npz(rig: BlendshapeRig, path) -> Path:
         fields.update(uvs=rig.uvs)
     if rig.vertex_parts is not None:
         fields.update(part_names=np.array(rig.part_names), vertex_parts=rig.vertex_parts)
+    if rig.inbetweens:
+        ib = rig.inbetweens
+        fields.update(inbetween_channels=np.array([c for c, _, _ in ib], dtype=np.int64),
+                      inbetween_counts=np.array([len(r) for _, r, _ in ib], dtype=np.int64),
+                      inbetween_rows=np.array([i for _, r, _ in ib for i in r], dtype=np.int64),
+                      inbetween_full_weights=np.array([f for _, _, w in ib for f in w], dtype=np.float64))
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, **fields)
     return Path(path)
@@ -354,8 +394,19 @@ def save_obj_folder(rig: BlendshapeRig, folder, *, unit_m: float = 1.0) -> Path:
 
     Not everything survives: the skeleton (neck/head joints and skin weights) is not written, so the folder loads
     back without one, and :func:`load_obj_folder` reads the shapes in alphabetical order of their file names, not
-    in ``rig.shape_names``' order. :func:`save_npz` keeps both."""
+    in ``rig.shape_names``' order. :func:`save_npz` keeps both.
+
+    OBJ folders have no in-betweens (:attr:`~kdfaces.rig.BlendshapeRig.inbetweens`): every target is written as its
+    own OBJ (``jawOpen@50.obj`` next to ``jawOpen.obj``), but the folder loads back linear in its shapes, so a rig
+    with in-betweens gets one :class:`LostInbetweensWarning` naming the channels (npz and glTF keep them)."""
     d = Path(folder)
+    if rig.inbetweens:
+        lost = ", ".join(f"{rig.shape_names[c]!r} (" + ", ".join(f"{rig.shape_names[r]} at {f:g}" for r, f in
+                                                                  zip(rows, full)) + ")"
+                         for c, rows, full in rig.inbetweens)
+        warnings.warn(f"{d}: OBJ folders cannot keep in-betweens; the folder loads back blending these channels' "
+                      f"targets linearly, as separate shapes: {lost}. Write .npz or glTF to keep them",
+                      LostInbetweensWarning, stacklevel=2)
     counts, corners = rig.polygon_counts, rig.polygon_corners
     groups = None
     if rig.vertex_parts is not None and rig.part_names:

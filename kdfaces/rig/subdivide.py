@@ -160,4 +160,4 @@ def subdivide_rig(rig: BlendshapeRig, levels: int = 1, *, target_vertices: int |
         parts = rig.vertex_parts[heaviest]
     return BlendshapeRig.create(neutral, deltas, faces, rig.shape_names, skeleton=skel, name=name,
                                 part_names=rig.part_names if parts is not None else (), vertex_parts=parts,
-                                source_unit_m=rig.source_unit_m, check_units=False)
+                                source_unit_m=rig.source_unit_m, inbetweens=rig.inbetweens, check_units=False)

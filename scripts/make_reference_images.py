@@ -5,8 +5,11 @@ PNGs, and commit them:
 
     .venv/bin/python scripts/make_reference_images.py
 
-Every reference is kinematic (rig + renderer only), so tuning the dynamics never invalidates them.
-``render_references`` is also what tests/test_render.py calls to compare a fresh render with the stored one.
+Every reference of ``render_references`` is kinematic (rig + renderer only), so tuning the dynamics never
+invalidates them; it is also what tests/test_render.py calls to compare a fresh render with the stored one.
+``authoring_references`` are the authoring viewers' (issue 26: target handles, the constraint panel), compared by
+tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, so they do not depend on the dynamics
+either.
 """
 
 from __future__ import annotations
@@ -50,6 +53,30 @@ def render_references() -> dict[str, np.ndarray]:
     return images
 
 
+def hat_target_image(viewer) -> np.ndarray:
+    """``kdfem view`` (a :class:`kdfem.viewer.HatViewer`) at frame 0 with a tip target 3 cm above the tip, not solved:
+    the RGB screenshot (H, W, 3) uint8."""
+    viewer.clear_tip_target()
+    viewer.set_frame(0)
+    viewer.add_tip_target()
+    viewer.offset_tip_target_mm(0.0, 30.0, 0.0)
+    viewer.plotter.render()
+    return np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
+
+
+def authoring_references() -> dict[str, np.ndarray]:
+    """name → RGB image (H, W, 3) uint8 of each authoring-viewer reference."""
+    from kdfem.viewer import HatViewer
+
+    images = {}
+    hat = HatViewer(off_screen=True, size=(320, 240))
+    try:
+        images["hat_tip_target"] = hat_target_image(hat)
+    finally:
+        hat.close()
+    return images
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REFERENCE_DIR, help="folder for the PNGs (default tests/reference)")
@@ -57,7 +84,7 @@ def main(argv=None) -> int:
     from PIL import Image
 
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, img in render_references().items():
+    for name, img in {**render_references(), **authoring_references()}.items():
         Image.fromarray(img).save(args.out / f"{name}.png", optimize=True)
         print(f"wrote {args.out / name}.png {img.shape[1]}×{img.shape[0]}")
     return 0

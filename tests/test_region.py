@@ -242,3 +242,174 @@ def test_the_makehuman_body_gets_its_cut_out_faces_window_and_motion():
     assert db[:, fv].max() == pytest.approx(df.max(), rel=0.20)
     outside = np.setdiff1d(np.arange(body.num_vertices), mb.region)
     assert db[:, outside].max() <= POSITION_ATOL_M
+
+
+# --- the region's x_K alone (issue 25 follow-up: the per-step work depends on the region only) --------------------
+
+#: float64 round-off of a blend of up to K = 52 shapes and one LBS product: a few units in the last place of the
+#: positions (about a metre from the origin), velocities and accelerations. With OpenBLAS the subset's products are
+#: the full products' columns bit for bit; another BLAS may block a column subset differently.
+ROUNDOFF = 16 * np.finfo(np.float64).eps
+
+
+def assert_rows_match(sub, full, rows):
+    """Every order of ``sub`` (T, R, 3) equals rows ``rows`` of ``full`` (T, N, 3) to float64 round-off."""
+    for s, f in zip(sub, full, strict=True):
+        f = f[:, rows]
+        assert s.shape == f.shape
+        np.testing.assert_allclose(s, f, rtol=0, atol=ROUNDOFF * max(1.0, float(np.abs(f).max())))
+
+
+def inbetween_rig(rig: BlendshapeRig) -> BlendshapeRig:
+    """``rig`` with an in-between target of jawOpen at weight 0.5 (60 % of the full shape, bent sideways a little)."""
+    jaw = rig.shape_indices(["jawOpen"])[0]
+    half = 0.6 * rig.deltas[jaw] + 0.002 * np.roll(rig.deltas[jaw], 1, axis=1)
+    return BlendshapeRig.create(rig.neutral, np.concatenate([rig.deltas, half[None]]), rig.faces,
+                                (*rig.shape_names, "jawHalfTarget"), skeleton=rig.skeleton, name=f"{rig.name}-ib",
+                                inbetweens=[(jaw, (rig.num_shapes, jaw), (0.5, 1.0))])
+
+
+@pytest.fixture(scope="module")
+def makehuman_body():
+    avatar_fixtures = pytest.importorskip("avatar_fixtures")
+    if not avatar_fixtures.BODY_PATH.is_file():
+        pytest.skip(f"{avatar_fixtures.BODY_PATH} is not built")
+    return avatar_fixtures.load_body()
+
+
+def test_a_restricted_trajectory_is_the_rows_of_the_full_one(bodies, short_demo, makehuman_body):
+    # blend over the deltas' columns of the rows and LBS of the rows only; in-betweens, head drives (the demo) and a
+    # joint-angle override all apply as in the full trajectory
+    rig = inbetween_rig(bodies[20])
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(-0.2, 2.6, 21))  # before, inside and after the shot (curves clamp)
+    for r, traj in ((rig, KinematicTrajectory(rig, short_demo)), (makehuman_body,
+                                                                  KinematicTrajectory(makehuman_body, short_demo))):
+        region = FaceModel.from_rig(r, **SETTLE).region
+        assert region is not None
+        for rows in (region, np.sort(rng.choice(r.num_vertices, 37, replace=False)), np.array([r.num_vertices - 1])):
+            view = traj.restricted(rows)
+            assert view.num_vertices == len(rows) and view.state_shape == (len(rows), 3)
+            assert_rows_match(view.evaluate(t, 2), KinematicTrajectory(r, short_demo).evaluate(t, 2), rows)
+            assert_rows_match(view.scan(t, 1), traj.scan(t, 1), rows)
+    # the in-between changes the jaw's x_K (so it is exercised) and the restricted path follows it
+    region = FaceModel.from_rig(rig, **SETTLE).region
+    plain = KinematicTrajectory(bodies[20], short_demo).restricted(region).positions(t)
+    assert np.abs(KinematicTrajectory(rig, short_demo).restricted(region).positions(t) - plain).max() > 1e-4
+
+
+def test_restricted_samples_are_cached_per_vertex_set_and_never_stale(bodies, short_demo):
+    body = bodies[20]
+    traj = KinematicTrajectory(body, short_demo)
+    a, b = np.arange(0, 400, 3), np.arange(100, 2000, 7)
+    va, vb = traj.restricted(a), traj.restricted(b)
+    assert traj.restricted(a.copy()) is va and va.version != vb.version != traj.version  # keyed by the set
+    t = traj.frame_times[:20]
+    first = va.evaluate(t, 2)
+    assert len(va._cache) == 20 and len(traj._cache) == 0  # its own cache; the full one is left alone
+    vb.evaluate(t, 1)
+    again = va.evaluate(t[::-1], 2)  # from the cache, in the order asked for
+    for x, y in zip(first, again):
+        np.testing.assert_array_equal(x[::-1], y)
+    full = traj.evaluate(t, 2)
+    assert_rows_match(vb.evaluate(t, 2), full, b)
+    assert_rows_match(again, tuple(f[::-1] for f in full), a)
+    # the views of the last two sets are kept, and a set asked for again after that is evaluated afresh
+    assert traj.restricted(b) is vb  # b the latest, then a third set pushes a out
+    traj.restricted(np.arange(5))
+    assert traj.restricted(b) is vb and traj.restricted(a) is not va
+    sub = va.restricted(np.arange(0, len(a), 2))  # a subset of a subset is a view of the base over those rows
+    assert_rows_match(sub.evaluate(t, 0), full[:1], a[::2])
+    for bad in ([3, 1], [0, body.num_vertices], [], np.zeros((2, 2), np.int64)):
+        with pytest.raises(KDInputError, match="vertices"):
+            traj.restricted(np.asarray(bad, dtype=np.int64))
+
+
+def test_a_restricted_corrected_trajectory_reads_its_correction_live(bodies, short_demo):
+    from kdfaces.ikd import CorrectedTrajectory, Correction, GaussianBasis, Slot
+
+    body = bodies[20]
+    base = KinematicTrajectory(body, short_demo)
+    n = body.num_vertices
+    slots = [Slot(0.8, "position", GaussianBasis(0.8, 0.2)), Slot(1.2, "velocity", GaussianBasis(1.2, 0.2))]
+    corr = Correction(slots, (n, 3))
+    rng = np.random.default_rng(5)
+    rows = FaceModel.from_rig(body, **SETTLE).region
+    t = np.linspace(0.5, 1.5, 13)
+    traj = CorrectedTrajectory(base, corr)
+    view = traj.restricted(rows)
+    assert view.num_vertices == len(rows) and view.state_shape == (len(rows), 3)
+    for _ in range(2):  # the correction edited in place: the view's values and version follow
+        corr.values[:] = 1e-3 * rng.standard_normal(corr.values.shape)
+        corr.update()
+        assert view.version == ("restricted", traj.version, view._key)
+        assert_rows_match(view.evaluate(t, 2), traj.evaluate(t, 2), rows)
+    bump = CorrectedTrajectory(base, corr, bump=(slots[1], 1e-3 * rng.standard_normal((n, 3))))
+    bview = bump.restricted(rows)
+    assert bview.version != view.version and bview.version[1] == bump.version
+    assert_rows_match(bview.evaluate(t, 2), bump.evaluate(t, 2), rows)
+    assert_rows_match(bview.scan(t, 1), bump.scan(t, 1), rows)
+
+
+class CountingTrajectory(KinematicTrajectory):
+    """A kinematic trajectory that records (times, vertex rows) of every evaluation it does."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.evaluated = []
+
+    def _evaluate_chunk(self, t, order=2, rows=None):
+        self.evaluated.append((len(t), self.rig.num_vertices if rows is None else len(rows.neutral)))
+        return super()._evaluate_chunk(t, order, rows)
+
+
+class FullOnly:
+    """A trajectory without a subset path (the generic fallback slices its full evaluation): the old bake."""
+
+    def __init__(self, traj):
+        self.traj, self.num_vertices, self.version = traj, traj.num_vertices, None
+        self.start, self.end, self.fps = traj.start, traj.end, traj.fps
+
+    def evaluate(self, times, order=2):
+        return self.traj.evaluate(times, order)
+
+
+def test_a_body_evaluates_x_k_of_its_region_per_step_and_of_the_rest_per_observed_state(head, bodies, short_demo):
+    body = bodies[60]
+    model = FaceModel.from_rig(body, **SETTLE)
+    region, rest = model.num_simulated, body.num_vertices - model.num_simulated
+    traj = CountingTrajectory(body, short_demo)
+    times = traj.frame_times[[8, 20, 45]]
+    x = simulate_kd(FaceSystem(model), traj, times, 0.3)
+    # every evaluation is the region's rows (the bake) or the rest's (observe, once per state): never all N
+    assert {r for _, r in traj.evaluated} == {region, rest}
+    assert sum(k for k, r in traj.evaluated if r == rest) == len(times)
+    # the same KD states as the full evaluation sliced (the implementation before), bit for bit where the BLAS
+    # sums a column subset as the whole (checked on x_K first), else to float32 round-off of the states
+    old = simulate_kd(FaceSystem(model), FullOnly(KinematicTrajectory(body, short_demo)), times, 0.3)
+    t_bake = np.arange(int(0.3 * short_demo.fps) + 1) / short_demo.fps + times[:, None]
+    full = KinematicTrajectory(body, short_demo).scan(t_bake.ravel(), 1)
+    sub = KinematicTrajectory(body, short_demo).restricted(model.region).scan(t_bake.ravel(), 1)
+    if all(np.array_equal(s, f[:, model.region]) for s, f in zip(sub, full)):
+        np.testing.assert_array_equal(x, old)
+    else:
+        np.testing.assert_allclose(x, old, rtol=0, atol=8 * np.finfo(np.float32).eps)
+    np.testing.assert_array_equal(x[:, :head.num_vertices],
+                                  simulate_kd(FaceSystem(FaceModel.from_rig(head, **SETTLE)),
+                                              KinematicTrajectory(head, short_demo), times, 0.3))
+
+
+def test_a_trajectory_without_a_subset_path_still_drives_a_region(bodies, short_demo):
+    # any object with evaluate(times, order) is a trajectory: the bake slices its full evaluation
+    body = bodies[20]
+    model = FaceModel.from_rig(body, **SETTLE)
+    traj = KinematicTrajectory(body, short_demo)
+    times = traj.frame_times[[10, 30]]
+    system = FaceSystem(model)
+    x = simulate_kd(system, FullOnly(traj), times, 0.2)
+    np.testing.assert_array_equal(x, simulate_kd(FaceSystem(model), traj, times, 0.2))
+    state = system.initial_state(FullOnly(traj), times)  # not prepared: the fallback too
+    x0, xk = system.observe(state), traj.positions(times)
+    inside = model.region_mask
+    np.testing.assert_array_equal(x0[:, inside], xk[:, inside].astype(np.float32))  # the state holds float32
+    np.testing.assert_array_equal(x0[:, ~inside], xk[:, ~inside])

@@ -14,8 +14,11 @@ clusters both fit.
 
 Region: the system simulates the model's region only (:attr:`FaceModel.region`, R of the rig's N vertices): masses,
 gains, clusters, the bake and the state are over those R vertices, so a step costs the same on a full-body avatar as
-on its face cut out alone. :meth:`FaceSystem.observe` returns every vertex, (B, N, 3): the vertices outside the region
-are x_K at each member's time, evaluated once per observed state (they follow x_K exactly, paper §4.5).
+on its face cut out alone. The bake and the initial states evaluate x_K over the region only
+(:func:`~kdfaces.motion.trajectory.restrict_trajectory`: a kinematic trajectory blends and skins those rows alone), so
+the per-step work does not depend on N either. :meth:`FaceSystem.observe` returns every vertex, (B, N, 3): the vertices
+outside the region are x_K at each member's time, evaluated (for those vertices only) once per observed state (they
+follow x_K exactly, paper §4.5).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import warp as wp
 
 from .. import defaults
 from ..errors import KDInputError, SimulationBlowUpError, check_count
-from ..motion.trajectory import scan_trajectory
+from ..motion.trajectory import restrict_trajectory, scan_trajectory
 from ..resources import init_warp
 from .clusters import Clusters
 from .kernels import cluster_frames, face_step, track_step
@@ -52,6 +55,10 @@ class TrajectoryBake:
     """x_K, ẋ_K of a trajectory sampled on a step grid, as float32 Warp arrays ``xk``, ``vk`` of shape (R, V) vec3:
     R rows of the V simulated vertices (``vertices``, sorted indices into the trajectory's N, or None: all N).
 
+    ``trajectory`` is the full trajectory (N vertices; its ``version`` identifies the bake); the rows are evaluated
+    on ``source``, the trajectory over ``vertices`` (default :func:`~kdfaces.motion.trajectory.restrict_trajectory`
+    of the two), so a bake costs V's vertices, not N's.
+
     Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` None): row r is the time
     ``origin + (j_lo + r)·h``, read by every window that starts on that grid (``origin`` defaults to the shot start;
     frame times with h = 1/fps lie on it), stride 1, and kept across simulate calls (a sweep over windows bakes
@@ -60,9 +67,10 @@ class TrajectoryBake:
     """
 
     def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None,
-                 origin: float | None = None, vertices: np.ndarray | None = None):
+                 origin: float | None = None, vertices: np.ndarray | None = None, source=None):
         self.trajectory, self.h, self.device = trajectory, float(h), device
         self.vertices = vertices
+        self.source = restrict_trajectory(trajectory, vertices) if source is None else source
         self.origin = float(getattr(trajectory, "start", 0.0)) if origin is None else float(origin)
         self.version = getattr(trajectory, "version", None)
         self.member_times = member_times
@@ -121,7 +129,7 @@ class TrajectoryBake:
         """A new shared-grid bake starting at grid index ``j_lo`` < ``self.j_lo``, reusing this one's rows (states
         that read this bake keep it)."""
         new = TrajectoryBake(self.trajectory, self.h, self.device, j_lo=j_lo, origin=self.origin,
-                             vertices=self.vertices)
+                             vertices=self.vertices, source=self.source)
         new.ensure(np.zeros(1, np.int32), self.j_lo - j_lo - 1)
         new._append(self.xk_np, self.vk_np)
         return new
@@ -158,9 +166,7 @@ class TrajectoryBake:
         need = int(rows.max()) + steps * self.stride + 1
         if need <= self.num_rows:
             return
-        x, v = self.trajectory.evaluate(self.times(np.arange(self.num_rows, need)), order=1)
-        if self.vertices is not None:  # the simulated rows only (the trajectory evaluates every vertex)
-            x, v = x[:, self.vertices], v[:, self.vertices]
+        x, v = self.source.evaluate(self.times(np.arange(self.num_rows, need)), order=1)  # the V rows only
         self._append(x, v)
 
 
@@ -273,6 +279,10 @@ class FaceSystem:
         self._kd = wp.array(model.kd[sim].astype(np.float32), dtype=float, device=d)
         self._rigid_sim = model.rigid_mask[sim]
         self._rigid = wp.array(self._rigid_sim.astype(np.int32), dtype=wp.int32, device=d)
+        # the vertices observe() takes from x_K: outside the region, and the region's rigid ones
+        self._kinematic_rows = None if region is None else np.setdiff1d(
+            np.arange(model.num_vertices), self._region[~self._rigid_sim]).astype(np.int64)
+        self._views = (None, None, None)  # (trajectory, its region view, its observe view), the last one asked for
         self._voff_none = wp.zeros(self._num_sim + 1, dtype=wp.int32, device=d)  # no goals when α = 0
         self._partitions: dict[int, _Partition] = {}
         self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
@@ -313,7 +323,8 @@ class FaceSystem:
         origin = TrajectoryBake.grid_origin(trajectory, t0, h)
         j = TrajectoryBake.grid_index(trajectory, t0, h, origin)
         if j is None:
-            bake = TrajectoryBake(trajectory, h, self.device, member_times=t0, vertices=self._region)
+            bake = TrajectoryBake(trajectory, h, self.device, member_times=t0, vertices=self._region,
+                                  source=self._view(trajectory))
             return bake, np.arange(len(t0), dtype=np.int32)
         old = self._bake
         version = getattr(trajectory, "version", None)  # content, not identity: an edited correction is new content
@@ -324,7 +335,7 @@ class FaceSystem:
                 or (max(hi, old.j_lo + old.num_rows) - min(lo, old.j_lo)) * row_bytes > self.max_bake_bytes):
             # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed)
             self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
-                                              vertices=self._region)
+                                              vertices=self._region, source=self._view(trajectory))
         elif lo < old.j_lo:
             self._bake = old = old.prepended(lo)
         return old, (j - old.j_lo).astype(np.int32)
@@ -360,9 +371,7 @@ class FaceSystem:
         else:  # not prepared: bake on the first step, when h is known
             self._check_trajectory(trajectory)
             bake = rows = None
-            x0, v0 = trajectory.evaluate(t0, order=1)
-            if self._region is not None:
-                x0, v0 = x0[:, self._region], v0[:, self._region]
+            x0, v0 = self._view(trajectory).evaluate(t0, order=1)  # the region's rows only
             x0, v0 = x0.astype(np.float32), v0.astype(np.float32)
         B = len(t0)
         fused = self.kernels == "fused"
@@ -435,7 +444,7 @@ class FaceSystem:
         if not (0.0 < h):
             raise KDInputError(f"step_s: expected a positive number of seconds, got {h}")
         bake = TrajectoryBake(trajectory, h, self.device, member_times=np.broadcast_to(t, (len(state.start_times),)),
-                              vertices=self._region)
+                              vertices=self._region, source=self._view(trajectory))
         bake.ensure(np.arange(bake.stride, dtype=np.int32), 1)
         tasks = []
         for k, part in state.tasks:
@@ -465,7 +474,8 @@ class FaceSystem:
     def observe(self, state: FaceState) -> np.ndarray:
         """Vertex positions of every member [m], shape (B, N, 3), float64. Rigid vertices, and with a region every
         vertex outside it, are the trajectory's own float64 positions at each member's time (they follow it
-        exactly; the state holds rigid ones in float32 and outside ones not at all), evaluated once here."""
+        exactly; the state holds rigid ones in float32 and outside ones not at all), evaluated once here (with a
+        region, for those vertices only)."""
         self._check(state)
         x = np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
         rigid = self._rigid_sim
@@ -473,8 +483,11 @@ class FaceSystem:
             traj = state.bake.trajectory if state.bake is not None else state.trajectory
             t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
             full = np.empty((len(x), self.model.num_vertices, 3))
-            for i in range(0, len(t), 32):
-                full[i:i + 32] = scan_trajectory(traj, t[i:i + 32], 0)[0]
+            rows = self._kinematic_rows
+            if len(rows):
+                view = self._view(traj, observe=True)
+                for i in range(0, len(t), 32):
+                    full[i:i + 32, rows] = scan_trajectory(view, t[i:i + 32], 0)[0]
             full[:, self._region[~rigid]] = x[:, ~rigid]
             return full
         if rigid.any() and state.bake is not None:
@@ -484,6 +497,27 @@ class FaceSystem:
         return x
 
     # --- internals ---------------------------------------------------------------------------------------------
+    def _view(self, trajectory, observe: bool = False):
+        """``trajectory`` over the region (``observe``: over the vertices observe() takes from x_K), through
+        :func:`~kdfaces.motion.trajectory.restrict_trajectory`; the trajectory itself without a region. The views
+        of the last trajectory are kept (a kinematic trajectory's view keeps its sample cache across calls, and
+        every view reads its trajectory live, so none goes stale)."""
+        if self._region is None:
+            return trajectory
+        last, region_view, observe_view = self._views
+        if last is not trajectory:
+            region_view = observe_view = None
+        if observe:
+            if observe_view is None:
+                observe_view = restrict_trajectory(trajectory, self._kinematic_rows)
+            view = observe_view
+        else:
+            if region_view is None:
+                region_view = restrict_trajectory(trajectory, self._region)
+            view = region_view
+        self._views = (trajectory, region_view, observe_view)
+        return view
+
     def _check_trajectory(self, trajectory) -> None:
         n = getattr(trajectory, "num_vertices", None)
         if n != self.model.num_vertices:

@@ -103,11 +103,43 @@ class Correction:
         c = self.coefficients.reshape(n, -1)
         return tuple((phi[k] @ c).reshape(-1, *self.state_shape) for k in range(order + 1))
 
+    def restricted(self, rows) -> _CorrectionRows:
+        """f over rows ``rows`` (sorted unique indices (R,) into the state's first axis, e.g. a vertex subset) as a
+        correction-like view: ``evaluate`` gives ``(T, R, *state_shape[1:])``, the same rows of :meth:`evaluate`'s,
+        from the live coefficients (never stale: it keeps nothing of its own)."""
+        return _CorrectionRows(self, rows)
+
     def support(self) -> tuple[float, float]:
         """The time interval outside which f ≡ 0 [s]."""
         lo = min(s.basis.support()[0] for s in self.slots)
         hi = max(s.basis.support()[1] for s in self.slots)
         return lo, hi
+
+
+class _CorrectionRows:
+    """Rows ``rows`` (R,) of a :class:`Correction`'s f (see :meth:`Correction.restricted`): f Φ c over the
+    coefficients' columns of those rows, read from the correction at every call."""
+
+    def __init__(self, correction: Correction, rows):
+        from ..motion.trajectory import vertex_subset
+
+        self.parent = correction
+        self.rows, self._key = vertex_subset(rows, correction.state_shape[0], "correction rows")
+        self.state_shape = (len(self.rows), *correction.state_shape[1:])
+        inner = int(np.prod(correction.state_shape[1:], dtype=np.int64))
+        self._columns = (self.rows[:, None] * inner + np.arange(inner)).ravel()
+
+    @property
+    def version(self):
+        """The correction's version (the rows are fixed)."""
+        return self.parent.version
+
+    def evaluate(self, times, order: int = 2):
+        """f and its time derivatives of the rows at ``times`` (T,) → ``order + 1`` arrays ``(T, *state_shape)``."""
+        c = self.parent
+        phi = c.basis_matrix(times, order)
+        coeff = c.coefficients.reshape(len(c.slots), -1)[:, self._columns]
+        return tuple((phi[k] @ coeff).reshape(-1, *self.state_shape) for k in range(order + 1))
 
 
 class CorrectedTrajectory:
@@ -175,3 +207,32 @@ class CorrectedTrajectory:
     def positions(self, times):
         """x_K + f at ``times`` (T,) [s] → ``(T, *state_shape)``."""
         return self.evaluate(times, order=0)[0]
+
+    def restricted(self, vertices) -> _RestrictedCorrectedTrajectory:
+        """x_K + f (and the trial bump) over the vertex subset ``vertices`` (sorted unique indices (R,) into the
+        state's first axis): the base restricted as :func:`~kdfaces.motion.trajectory.restrict_trajectory` does
+        (a kinematic trajectory blends and skins those rows only), f and the bump over the same rows. It reads
+        this trajectory's correction live, and its ``version`` is this one's and the vertex set's."""
+        return _RestrictedCorrectedTrajectory(self, vertices)
+
+
+class _RestrictedCorrectedTrajectory(CorrectedTrajectory):
+    """A :class:`CorrectedTrajectory` over a vertex subset (see :meth:`CorrectedTrajectory.restricted`)."""
+
+    def __init__(self, parent: CorrectedTrajectory, vertices):
+        from ..motion.trajectory import restrict_trajectory, vertex_subset
+
+        v, key = vertex_subset(vertices, parent.state_shape[0])
+        bump = None
+        if parent.bump is not None:
+            slot, e = parent.bump
+            e = np.asarray(e)
+            bump = (slot, e[v] if e.ndim >= 1 and e.shape[0] == parent.state_shape[0] else e)
+        correction = None if parent.correction is None else parent.correction.restricted(v)
+        super().__init__(restrict_trajectory(parent.base, v), correction, bump=bump)
+        self._parent, self._key, self.vertices = parent, key, v
+
+    @property
+    def version(self):
+        """("restricted", the parent's version, the vertex set): the parent's bump token and correction updates."""
+        return ("restricted", self._parent.version, self._key)

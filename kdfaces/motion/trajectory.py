@@ -7,6 +7,8 @@ and head joints, with exact derivatives from the curves (no finite differences).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import itertools
 import warnings
 from collections import OrderedDict
@@ -23,7 +25,7 @@ from .curves import KeyframeCurve
 from .joints import JointTrajectory, SkeletonAnimation
 
 __all__ = ["ShapeTrack", "FaceAnimation", "KinematicTrajectory", "UnmappedChannelsWarning", "scan_trajectory",
-           "MIN_MAPPED_SHARE"]
+           "MIN_MAPPED_SHARE", "RestrictedTrajectory", "SlicedTrajectory", "restrict_trajectory", "vertex_subset"]
 
 
 def scan_trajectory(trajectory, times, order: int = 2):
@@ -32,6 +34,152 @@ def scan_trajectory(trajectory, times, order: int = 2):
     ``evaluate(times, order)`` is a trajectory. ``times`` (T,) [s] → ``order + 1`` arrays ``(T, *state_shape)``."""
     scan = getattr(trajectory, "scan", None)
     return trajectory.evaluate(times, order) if scan is None else scan(times, order)
+
+
+def vertex_subset(vertices, num_vertices: int, where: str = "vertices") -> tuple[np.ndarray, bytes]:
+    """``vertices`` as sorted unique int64 indices (R,) into ``num_vertices`` (read-only), and a digest of the set
+    (what caches and versions of a restricted trajectory are keyed by)."""
+    v = np.asarray(vertices)
+    if v.ndim != 1 or not (v.dtype.kind in "iu" or v.size == 0):
+        raise KDInputError(f"{where}: expected 1-D integer vertex indices, got an array of shape {v.shape} and "
+                           f"dtype {v.dtype}")
+    v = v.astype(np.int64)
+    if v.size == 0 or v[0] < 0 or v[-1] >= num_vertices or (np.diff(v) <= 0).any():
+        raise KDInputError(f"{where}: expected at least one sorted unique vertex index in [0, {num_vertices}), got "
+                           f"{v.size} indices" + (f" from {v.min()} to {v.max()}" if v.size else ""))
+    v = np.array(v)  # an own copy: the caller's array may change, the subset must not
+    v.flags.writeable = False
+    return v, hashlib.blake2b(v.tobytes(), digest_size=16).digest()
+
+
+def restrict_trajectory(trajectory, vertices):
+    """The trajectory over the vertex subset ``vertices`` (sorted unique indices (R,), or None: ``trajectory``
+    itself): ``evaluate(times, order)`` gives ``order + 1`` arrays (T, R, 3), rows ``vertices`` of the full
+    evaluation. Through the trajectory's own ``restricted(vertices)`` when it has one (a
+    :class:`KinematicTrajectory` blends and skins those rows only), else a :class:`SlicedTrajectory` that slices
+    the full evaluation (any trajectory)."""
+    if vertices is None:
+        return trajectory
+    restricted = getattr(trajectory, "restricted", None)
+    return restricted(vertices) if restricted is not None else SlicedTrajectory(trajectory, vertices)
+
+
+class SlicedTrajectory:
+    """Rows ``vertices`` (R,) of any trajectory's full evaluation: the generic :func:`restrict_trajectory` (no work
+    saved; the trajectory's own sample cache, if any, holds full samples as before). ``version`` follows the
+    trajectory's (read on every access: a trajectory edited in place is new content) and the vertex set."""
+
+    def __init__(self, trajectory, vertices):
+        n = getattr(trajectory, "num_vertices", None)
+        self.parent = trajectory
+        self.vertices, self._key = vertex_subset(vertices, np.iinfo(np.int64).max if n is None else int(n))
+
+    @property
+    def version(self):
+        """("restricted", the trajectory's version, the vertex set), or None when the trajectory has none."""
+        base = getattr(self.parent, "version", None)
+        return None if base is None else ("restricted", base, self._key)
+
+    @property
+    def num_vertices(self) -> int:
+        """R, the subset's vertex count."""
+        return len(self.vertices)
+
+    @property
+    def state_shape(self) -> tuple[int, int]:
+        """(R, 3)."""
+        return (len(self.vertices), 3)
+
+    @property
+    def start(self) -> float:
+        """Shot start [s] (the trajectory's; 0 when it has none)."""
+        return float(getattr(self.parent, "start", 0.0))
+
+    def evaluate(self, times, order: int = 2):
+        """Rows ``vertices`` of the trajectory's ``evaluate(times, order)``: ``order + 1`` arrays (T, R, 3)."""
+        return tuple(np.asarray(a)[:, self.vertices] for a in self.parent.evaluate(times, order))
+
+    def scan(self, times, order: int = 2):
+        """The same through :func:`scan_trajectory` (a one-off pass)."""
+        return tuple(np.asarray(a)[:, self.vertices] for a in scan_trajectory(self.parent, times, order))
+
+    def positions(self, times) -> np.ndarray:
+        """x_K of the subset at ``times`` (T,) [s] → (T, R, 3) [m]."""
+        return self.evaluate(times, order=0)[0]
+
+
+class _RigRows:
+    """The rig data that evaluating vertex rows ``vertices`` (R,) needs: neutral (R, 3) [m], flat deltas
+    (K, 3R) float64 [m] and the skeleton with the rows' skin weights (R, J)."""
+
+    def __init__(self, rig: BlendshapeRig, vertices: np.ndarray):
+        self.num_shapes = rig.num_shapes
+        self.neutral = np.ascontiguousarray(rig.neutral[vertices])
+        # the same float64 values as the rig's own flat deltas (float32 deltas widen exactly), columns of the rows
+        self.flat = np.take(rig.deltas, vertices, axis=1).reshape(rig.num_shapes, -1).astype(np.float64)
+        skel = rig.skeleton
+        self.skeleton = None if skel is None else dataclasses.replace(
+            skel, weights=np.ascontiguousarray(skel.weights[vertices]))
+
+    def blend_offsets(self, weights) -> np.ndarray:
+        """Σ w_k Δ_k of the rows for weights (T, K) → (T, R, 3), as :meth:`BlendshapeRig.blend_offsets` (shapes
+        whose weight is zero at every time skipped)."""
+        w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        nz = np.flatnonzero(np.abs(w2).max(axis=0) > 0)
+        if len(nz) == 0:
+            return np.zeros((len(w2), len(self.neutral), 3))
+        return (w2[:, nz] @ self.flat[nz]).reshape(len(w2), -1, 3)
+
+    def blend(self, weights) -> np.ndarray:
+        """x0 + Σ w_k Δ_k of the rows for weights (T, K) → (T, R, 3), as :meth:`BlendshapeRig.blend`."""
+        w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+        check_finite(w2, "weights")
+        return self.blend_offsets(w2) + self.neutral
+
+
+def _cached_evaluate(owner, times, order: int, chunk_fn, scan_fn):
+    """``evaluate`` through ``owner``'s sample cache (``owner._cache``: time in ns → stacked (3, *state) sample,
+    ``owner._cache_max`` samples, ``owner.chunk`` times per ``chunk_fn`` call); more distinct times than the cache
+    holds go to ``scan_fn``."""
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    check_finite(t, "trajectory times")
+    if order not in (0, 1, 2):
+        raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
+    keys = np.round(t * 1e9).astype(np.int64)
+    uniq, first_index, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    if len(uniq) > owner._cache_max:  # more distinct times than the cache holds: evaluate directly
+        return scan_fn(t, order)
+    cache = owner._cache
+    found = {}
+    missing = []
+    for k, i in zip(uniq.tolist(), first_index.tolist()):
+        sample = cache.get(k)
+        if sample is None:
+            missing.append((k, i))  # times within 1 ns share a sample, evaluated at the first one asked for
+        else:
+            cache.move_to_end(k)
+            found[k] = sample
+    for c in range(0, len(missing), owner.chunk):
+        part = missing[c:c + owner.chunk]
+        x, v, a = chunk_fn(t[[i for _, i in part]])
+        for j, (k, _) in enumerate(part):
+            found[k] = np.stack([x[j], v[j], a[j]])
+    for k, _ in missing:  # cache after the call has what it needs, so nothing it uses is evicted early
+        cache[k] = found[k]
+        if len(cache) > owner._cache_max:
+            cache.popitem(last=False)
+    samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
+    return tuple(samples[o] for o in range(order + 1))
+
+
+def _chunked_scan(chunk: int, times, order: int, chunk_fn):
+    """``chunk_fn(t, order)`` over ``times`` in chunks of ``chunk`` times, concatenated (no cache)."""
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    check_finite(t, "trajectory times")
+    if order not in (0, 1, 2):
+        raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
+    parts = [chunk_fn(t[i:i + chunk], order)[:order + 1] for i in range(0, len(t), chunk)]
+    return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
 
 _TOKENS = itertools.count()
 
@@ -157,7 +305,9 @@ class KinematicTrajectory:
         self.chunk = int(chunk)
         # evaluated samples, keyed by time in ns: KD windows, IKD iterations and scrubbing re-read the same grid
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cache_bytes = int(cache_bytes)
         self._cache_max = int(cache_bytes) // (3 * rig.num_vertices * 3 * 8)
+        self._views: OrderedDict[bytes, RestrictedTrajectory] = OrderedDict()  # restricted(), by vertex set
         strict = animation.strict_channels if strict is None else bool(strict)
         where = f"animation {animation.name!r}" if where is None else where
         self._tracks, skipped = [], []
@@ -306,56 +456,44 @@ class KinematicTrajectory:
         ``cache_bytes``; a call asking for more distinct times than fit is evaluated directly, in chunks (as
         :meth:`scan` does). Either way the memory does not grow with the number of times ever asked for.
         """
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        check_finite(t, "trajectory times")
-        if order not in (0, 1, 2):
-            raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
-        keys = np.round(t * 1e9).astype(np.int64)
-        uniq, first_index, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        if len(uniq) > self._cache_max:  # more distinct times than the cache holds: evaluate directly
-            return self.scan(t, order)
-        found = {}
-        missing = []
-        for k, i in zip(uniq.tolist(), first_index.tolist()):
-            sample = self._cache.get(k)
-            if sample is None:
-                missing.append((k, i))  # times within 1 ns share a sample, evaluated at the first one asked for
-            else:
-                self._cache.move_to_end(k)
-                found[k] = sample
-        for c in range(0, len(missing), self.chunk):
-            part = missing[c:c + self.chunk]
-            x, v, a = self._evaluate_chunk(t[[i for _, i in part]])
-            for j, (k, _) in enumerate(part):
-                found[k] = np.stack([x[j], v[j], a[j]])
-        for k, _ in missing:  # cache after the call has what it needs, so nothing it uses is evicted early
-            self._cache[k] = found[k]
-            if len(self._cache) > self._cache_max:
-                self._cache.popitem(last=False)
-        samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
-        return tuple(samples[o] for o in range(order + 1))
+        return _cached_evaluate(self, times, order, self._evaluate_chunk, self.scan)
 
     def scan(self, times, order: int = 2):
         """:meth:`evaluate` without the sample cache, in chunks: for one-off passes over a shot (a window estimate,
         a bake that keeps its own rows) that would only push re-used samples out of it."""
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        check_finite(t, "trajectory times")
-        if order not in (0, 1, 2):
-            raise KDInputError(f"trajectory: order must be 0, 1 or 2, got {order}")
-        parts = [self._evaluate_chunk(t[i:i + self.chunk], order)[:order + 1] for i in range(0, len(t), self.chunk)]
-        return tuple(np.concatenate([p[o] for p in parts]) for o in range(order + 1))
+        return _chunked_scan(self.chunk, times, order, self._evaluate_chunk)
+
+    def restricted(self, vertices) -> RestrictedTrajectory:
+        """x_K of the vertex subset ``vertices`` (sorted unique indices (R,)) as a trajectory of its own
+        (:class:`RestrictedTrajectory`): it blends the deltas' columns of those rows and skins those rows only, so
+        its cost is R's, not N's, and its samples are rows ``vertices`` of :meth:`evaluate`'s. The views of the
+        last two vertex sets asked for are kept (a face system asks for its region at every bake), each with its
+        own sample cache within ``cache_bytes``."""
+        v, key = vertex_subset(vertices, self.rig.num_vertices)
+        view = self._views.get(key)
+        if view is None:
+            view = self._views[key] = RestrictedTrajectory(self, v, key)
+            if len(self._views) > 2:
+                self._views.popitem(last=False)
+        else:
+            self._views.move_to_end(key)
+        return view
 
     def positions(self, times) -> np.ndarray:
         """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""
         return self.evaluate(times, order=0)[0]
 
-    def _evaluate_chunk(self, t, order: int = 2):
-        """x_K, ẋ_K, ẍ_K at ``t``; derivatives above ``order`` are not computed (None)."""
+    def _evaluate_chunk(self, t, order: int = 2, rows: _RigRows | None = None):
+        """x_K, ẋ_K, ẍ_K at ``t``; derivatives above ``order`` are not computed (None). ``rows``: the vertex rows to
+        evaluate (every vertex when None): the blend reads their columns of the deltas and LBS their skin weights,
+        the same products per row as the full evaluation (the tests hold the two to float64 round-off; with
+        OpenBLAS they are bit for bit the same)."""
         w = self.weights(t, order)
-        y = self.rig.blend(w[0])
-        dy = self.rig.blend_offsets(w[1]) if order >= 1 else None
-        ddy = self.rig.blend_offsets(w[2]) if order >= 2 else None
-        skel = self.rig.skeleton
+        blend = self.rig if rows is None else rows
+        y = blend.blend(w[0])
+        dy = blend.blend_offsets(w[1]) if order >= 1 else None
+        ddy = blend.blend_offsets(w[2]) if order >= 2 else None
+        skel = self.rig.skeleton if rows is None else rows.skeleton
         if self._joint_override:
             G = joint_transforms(skel, self._joints.evaluate(t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
@@ -368,3 +506,89 @@ class KinematicTrajectory:
             dy = None if dy is None else dy + r[1][:, None]
             ddy = None if ddy is None else ddy + r[2][:, None]
         return y, dy, ddy
+
+
+class RestrictedTrajectory:
+    """x_K of a :class:`KinematicTrajectory` over a vertex subset (R,) (from :meth:`KinematicTrajectory.restricted`):
+    arrays (T, R, 3) in metres, m/s and m/s², rows ``vertices`` of the full trajectory's. Only those rows are
+    blended and skinned (in-betweens, joint overrides and root motion as in the full trajectory), so the work
+    scales with R: a full-body avatar's face system bakes its face region at the cost of the face alone.
+
+    Its sample cache is its own, keyed by time (the subset is fixed, and the base trajectory is immutable, so
+    samples never go stale), within the base's ``cache_bytes``. ``version`` is the base's and the vertex set's.
+    """
+
+    def __init__(self, base: KinematicTrajectory, vertices: np.ndarray, key: bytes):
+        self.base = base
+        self.vertices = vertices
+        self._key = key
+        self._rows = _RigRows(base.rig, vertices)
+        self.chunk = base.chunk
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cache_max = base._cache_bytes // (3 * len(vertices) * 3 * 8)
+        self.version = ("restricted", base.version, key)
+
+    @property
+    def rig(self) -> BlendshapeRig:
+        """The base trajectory's rig (all N vertices; this trajectory has rows ``vertices`` of it)."""
+        return self.base.rig
+
+    @property
+    def animation(self) -> FaceAnimation:
+        """The base trajectory's animation."""
+        return self.base.animation
+
+    @property
+    def num_vertices(self) -> int:
+        """R, the subset's vertex count."""
+        return len(self.vertices)
+
+    @property
+    def state_shape(self) -> tuple[int, int]:
+        """(R, 3)."""
+        return (len(self.vertices), 3)
+
+    @property
+    def start(self) -> float:
+        """Shot start [s]."""
+        return self.base.start
+
+    @property
+    def end(self) -> float:
+        """Shot end [s]."""
+        return self.base.end
+
+    @property
+    def fps(self) -> float:
+        """Frame rate [1/s]."""
+        return self.base.fps
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        """Times [s] of every frame, shape (F,)."""
+        return self.base.frame_times
+
+    def moves(self) -> bool:
+        """Whether the base trajectory's x_K changes over time (see :meth:`KinematicTrajectory.moves`)."""
+        return self.base.moves()
+
+    def restricted(self, vertices) -> RestrictedTrajectory:
+        """A subset of this subset: ``vertices`` index its R rows (a view of the base over those vertices)."""
+        v, _ = vertex_subset(vertices, len(self.vertices))
+        return self.base.restricted(self.vertices[v])
+
+    def _evaluate_chunk(self, t, order: int = 2):
+        return self.base._evaluate_chunk(t, order, self._rows)
+
+    def evaluate(self, times, order: int = 2):
+        """x_K, ẋ_K, ẍ_K of the subset at ``times`` (T,) → ``order + 1`` arrays (T, R, 3), float64 (cached as
+        :meth:`KinematicTrajectory.evaluate` caches)."""
+        return _cached_evaluate(self, times, order, self._evaluate_chunk, self.scan)
+
+    def scan(self, times, order: int = 2):
+        """:meth:`evaluate` without the sample cache, in chunks (a one-off pass)."""
+        return _chunked_scan(self.chunk, times, order, self._evaluate_chunk)
+
+    def positions(self, times) -> np.ndarray:
+        """x_K of the subset at ``times`` (T,) [s] → (T, R, 3) [m]."""
+        return self.evaluate(times, order=0)[0]

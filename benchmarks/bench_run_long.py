@@ -78,16 +78,20 @@ def _builder():
 
 def measure_command(argv: list[str], env: dict) -> dict:
     """Run ``python -m kdfaces.cli ARGV`` as a child: exit status, wall time [s], the child's peak RSS [bytes]."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from kdfaces.cli import main; sys.exit(main())",
-                             *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    out, err = proc.communicate()  # reads both pipes; the child has exited but is not reaped yet
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(argv[:2])}: exit {proc.returncode}: {err.decode()[-1500:]}")
-    return {"wall_s": wall, "peak_bytes": usage.ru_maxrss * 1024, "stdout": out.decode()}
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c",
+                                 "import sys; from kdfaces.cli import main; sys.exit(main())", *argv],
+                                stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)  # this child's own rusage (ru_maxrss: its peak RSS)
+        wall = time.perf_counter() - t0
+        proc.returncode = code = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read().decode(), err.read().decode()
+    if code != 0:
+        raise RuntimeError(f"{' '.join(argv[:2])}: exit {code}: {stderr[-1500:]}")
+    return {"wall_s": wall, "peak_bytes": usage.ru_maxrss * 1024, "stdout": stdout}
 
 
 def bench_run_long_take(repeats: int, *, duration_s: float = DURATION_S, target_vertices: int | None = 27_000,

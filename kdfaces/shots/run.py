@@ -125,8 +125,9 @@ class ShotRun:
 
     def _stream_trajectories(self):
         """(x_K, x_K + f or None): the shot's trajectory and the corrected one, rebuilt for passes over the take
-        (as a bake worker rebuilds them) with a sample cache of about two chunks' windows, not the shot's default
-        256 MiB, so that a pass keeps no more than it re-reads whatever the take's length. Same values, same bits."""
+        (as a bake worker rebuilds them) with a sample cache of one chunk's window, not the shot's default 256 MiB:
+        a chunk's frames are the latest rows the face system bakes, so the chunk's x_K (and the rigid vertices'
+        positions) are read from there, and the pass keeps no more than that whatever the take's length."""
         if "_stream" not in self.__dict__:
             import warnings
 
@@ -142,7 +143,7 @@ class ShotRun:
                 warnings.simplefilter("ignore")
                 base = KinematicTrajectory(shot.rig, shot.animation, channel_map=shot.channel_map,
                                            strict=shot.strict_channels,
-                                           cache_bytes=2 * (self.chunk_frames + n + 1) * sample)
+                                           cache_bytes=(self.chunk_frames + n + 2) * sample)
             corrected = None
             r = self.ikd_result
             if r is not None:
@@ -287,14 +288,15 @@ def _stream(run: ShotRun, sinks, keep: bool, progress: bool) -> None:
     n = run.shot.rig.num_vertices
     solved = run.ikd_result is not None
     kinds = ("kd", "ikd") if solved else ("kd",)
-    # the system's trajectory bake (x_K, ẋ_K on the step grid) kept across chunks: a few chunks' windows, not the
-    # 512 MiB default, so it restarts (re-baking one window) every few chunks instead of growing with the take
+    # the system's trajectory bake (x_K, ẋ_K on the step grid) kept across chunks: three chunks' windows, not the
+    # 512 MiB default, so it restarts (re-baking one window, n rows) every few chunks instead of growing with the
+    # take (the bake's workers keep two)
     steps = window_steps(run.window_s, run.step_s)
     for w in (run.kd_windows_s, run.ikd_windows_s):
         if w is not None:
             steps = max(steps, int(np.ceil(w.max() / run.step_s - 1e-9)))
     if hasattr(run.system, "max_bake_bytes"):
-        run.system.max_bake_bytes = min(run.system.max_bake_bytes, 4 * (run.chunk_frames + steps + 1) * 48 * n)
+        run.system.max_bake_bytes = min(run.system.max_bake_bytes, 3 * (run.chunk_frames + steps + 1) * 48 * n)
     kd_s = 0.0
     kept = {}
     with progress_bar("KD states", f * len(kinds), progress) as bar:

@@ -7,8 +7,8 @@ PNGs, and commit them:
 
 Every reference of ``render_references`` is kinematic (rig + renderer only), so tuning the dynamics never
 invalidates them; it is also what tests/test_render.py calls to compare a fresh render with the stored one.
-``authoring_references`` are the authoring viewers' (issue 26: target handles, the constraint panel), compared by
-tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, so they do not depend on the dynamics
+``authoring_references`` (part of them) are the authoring viewers' (issue 26: target handles, the constraint
+panel), also compared by tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, so they do not depend on the dynamics
 either.
 """
 
@@ -50,6 +50,7 @@ def render_references() -> dict[str, np.ndarray]:
         images["viewer_kinematic"] = np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
     finally:
         viewer.close()
+    images.update(authoring_references())
     return images
 
 
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
     from PIL import Image
 
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, img in {**render_references(), **authoring_references()}.items():
+    for name, img in render_references().items():
         Image.fromarray(img).save(args.out / f"{name}.png", optimize=True)
         print(f"wrote {args.out / name}.png {img.shape[1]}×{img.shape[0]}")
     return 0

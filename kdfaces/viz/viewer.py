@@ -13,11 +13,23 @@ Keys: ``space`` play/stop, ``m`` cycle kinematic → KD → IKD, ``i`` solve IKD
 ``w`` kinematic wireframe overlay, ``Left``/``Right`` step one frame. Every slider and key calls a plain method of
 :class:`ShotViewer`, so tests drive the viewer programmatically; ``kdfaces view SHOT --screenshot FILE --frame F``
 renders one frame off-screen.
+
+Authoring (paper §6.6, Fig. 11-12; issue 26), with an authoring session (``session=``, what ``kdfaces view`` opens on
+the shot file: :class:`kdfaces.shots.authoring.AuthoringSession`; the viewer only maps mouse and keys to its
+methods): ``p`` picks the vertex under the mouse (:meth:`ShotViewer.pick`) and adds a point target there at the
+current frame, its handle on the vertex's KD position (drag it: :meth:`ShotViewer.drag_target`; or type an offset:
+:meth:`ShotViewer.set_offset_mm`); ``g`` cycles the named group, ``h`` holds it where the kinematic pose has it,
+``v`` stops it (velocity 0), ``o`` sets a pose constraint at this frame; ``i`` solves in a worker thread (warm start;
+progress in the status line, ``Escape`` cancels, the window stays responsive); ``u`` or ``ctrl+z`` undoes, ``y``
+redoes, ``s`` saves into the shot file, ``Up``/``Down`` select a row of the constraint panel (and jump to its frame),
+``n`` enables/disables it, ``Delete`` (or ``x``) deletes it. A bad edit shows the session's message in the status
+line and changes nothing.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from pathlib import Path
 
@@ -31,7 +43,7 @@ from .figures import SKIN, check_focus, framing, rig_focus
 from .markers import constraint_markers
 
 __all__ = ["MODES", "ShotViewer", "PlotterWindow", "with_width", "check_window_size", "check_view_arguments",
-           "check_screenshot_path"]
+           "check_screenshot_path", "panel_row_text"]
 
 MODES = ("kinematic", "kd", "ikd")
 _MODE_NAMES = {"kinematic": "kinematic", "kd": "KD", "ikd": "IKD"}
@@ -194,8 +206,17 @@ class ShotViewer(PlotterWindow):
     """
 
     def __init__(self, shot, *, off_screen: bool = False, size=(960, 720), window_s: float | str | None = None,
-                 widgets: bool = True, device: str = "cpu", threads: int = defaults.THREADS, focus=None):
+                 widgets: bool = True, device: str = "cpu", threads: int = defaults.THREADS, focus=None,
+                 session=None):
         self.shot = shot
+        self.session = session
+        self.selected = None  # the selected row of the constraint panel (index into the session's rows), or None
+        self.group = _GROUPS[0]  # the named group ``h``/``v`` act on (``g`` cycles)
+        self.message = ""  # the last authoring message (a bad edit's, a save's), shown in the status line
+        self._solve_thread = None
+        self._cancel = threading.Event()
+        self._solve_progress = ""
+        self._solve_outcome = None
         self.focus = rig_focus(shot.rig) if focus is None else check_focus(focus, shot.rig.num_vertices)
         self.threads = int(threads)
         self.trajectory = shot.trajectory
@@ -243,7 +264,10 @@ class ShotViewer(PlotterWindow):
         self._windows = {}
 
     def constraints(self) -> list:
-        """The shot's constraints; once the width slider moved, all with the viewer's correction width σ."""
+        """The shot's constraints (with a session: its enabled rows' constraints); once the width slider moved, all
+        with the viewer's correction width σ."""
+        if self.session is not None:
+            return list(self.session.constraints())
         if not self._width_set:
             return list(self._constraints)
         return [with_width(c, self.width_s) for c in self._constraints]
@@ -357,9 +381,16 @@ class ShotViewer(PlotterWindow):
         self.set_mode(MODES[(MODES.index(self.mode) + 1) % len(MODES)])
 
     def solve_ikd(self):
-        """Key ``i``: solve IKD for the shot's constraints with the current parameters; show the IKD state."""
+        """Key ``i``: solve IKD for the shot's constraints with the current parameters; show the IKD state.
+
+        With a session, the session solves (warm start) and this waits for it: :meth:`solve_async` is what the key
+        calls in a window."""
         from ..ikd.solver import solve_ikd
 
+        if self.session is not None:
+            self.solve_async()
+            self.wait_solve()
+            return self.ikd
         if not self._constraints:
             self.ikd_message = "IKD: the shot has no constraints"
             self.update()
@@ -390,7 +421,15 @@ class ShotViewer(PlotterWindow):
         self.wire = pv.PolyData(rig.neutral.astype(np.float64).copy(), cells)
         self.plotter = pl = pv.Plotter(off_screen=off_screen, window_size=tuple(size), lighting="three lights")
         pl.set_background("white")
-        pl.add_mesh(self.mesh, color=SKIN, smooth_shading=True, specular=0.2)
+        self._mesh_actor = pl.add_mesh(self.mesh, color=SKIN, smooth_shading=True, specular=0.2)
+        self._handle_sphere = pv.Sphere(radius=_HANDLE_RADIUS_M, center=(0.0, 0.0, 0.0))
+        self._handle_rest = np.asarray(self._handle_sphere.points).copy()
+        self._handle_actor = pl.add_mesh(self._handle_sphere, color=_HANDLE_COLOR, reset_camera=False)
+        self._handle_actor.SetVisibility(False)
+        self._handle_widget = None
+        self._off_screen = off_screen
+        self._panel = pl.add_text("", position=(0.01, 0.2), viewport=True, font_size=8, color="black",
+                                  font="courier")
         self._wire_actor = pl.add_mesh(self.wire, style="wireframe", color="#3b6fb6", opacity=0.25, line_width=1)
         self._wire_actor.SetVisibility(False)
         self._marker_actors = []
@@ -402,9 +441,11 @@ class ShotViewer(PlotterWindow):
         self._add_controls(center, position, sliders, widgets=widgets, off_screen=off_screen)
         if not off_screen:
             pl.add_key_event("m", self.cycle_mode)
-            pl.add_key_event("i", self.solve_ikd)
+            pl.add_key_event("i", self._guarded(self.solve_async) if self.session is not None else self.solve_ikd)
             pl.add_key_event("a", lambda: self.set_adaptive(not self.adaptive))
             pl.add_key_event("w", lambda: self.show_kinematic(not self._wire_actor.GetVisibility()))
+            if self.session is not None:
+                self._authoring_keys(pl)
 
     def _constraint_markers(self, x: np.ndarray) -> list:
         """Markers of the constraints at the displayed frame (within half a step of its time); a pose constraint's
@@ -435,6 +476,8 @@ class ShotViewer(PlotterWindow):
         slider = self._sliders.get("frame")
         if slider is not None:
             slider.GetRepresentation().SetValue(self.frame)
+        self._draw_handle()
+        self._panel.SetInput(self.panel_text() or " ")
         self.update_text()
 
     def status(self) -> str:
@@ -457,6 +500,12 @@ class ShotViewer(PlotterWindow):
                  f"KD state: {self.last_ms:.1f} ms   window {window:.2f} s "
                  f"({steps} steps of {1e3 * self.step_s:.0f} ms){how}",
                  self.ikd_message + ("  [stale: press i]" if self.ikd_stale else "")]
+        if self.session is not None:
+            busy = self.solving
+            lines.append(f"solving... {self._solve_progress} (Esc cancels)" if busy else
+                         f"group: {self.group}   p point  h hold  v stop  o pose  i solve  u undo  y redo  s save")
+            if self.message:
+                lines.append(self.message)
         return "\n".join(lines)
 
     # --- output ------------------------------------------------------------------------------------------------
@@ -465,9 +514,305 @@ class ShotViewer(PlotterWindow):
         self._open_window(float(getattr(self.shot.animation, "fps", 25.0)), f"kdfaces view: {self.shot.name}")
 
     def close(self) -> None:
-        """Close the window and free the plotter (and the KD system's worker threads)."""
+        """Close the window and free the plotter (and the KD system's worker threads); a running solve is
+        cancelled and waited for."""
+        if self._solve_thread is not None:
+            self._cancel.set()
+            self._solve_thread.join()
         self.plotter.close()
         self.system.close()
+
+    def tick(self, *_) -> None:
+        """Timer: collect a finished solve (:meth:`poll_solve`), show its progress, advance one frame while
+        playing."""
+        if self.session is not None and (self._solve_thread is not None or self._solve_outcome is not None):
+            if not self.poll_solve():
+                self.update_text()
+        super().tick()
+
+    # --- authoring (a session's edits, at the current frame) ---------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """The displayed frame's time [s]."""
+        return float(self.times[self.frame])
+
+    def _session(self):
+        if self.session is None:
+            raise KDInputError("authoring: this viewer has no authoring session (open it with kdfaces view SHOT)")
+        return self.session
+
+    def _edit(self, name: str, *args, select=None, **kwargs):
+        """Call the session's edit ``name``; its message (a bad edit's, which changed nothing) goes to the status
+        line, never a traceback. ``select``: the row to select after a successful edit ("new": the last row)."""
+        s = self._session()
+        n0 = len(s.rows)
+        try:
+            out = getattr(s, name)(*args, **kwargs)
+        except KDInputError as e:  # the session records its own messages; an error raised anyway is shown too
+            self.message = f"{name}: {e}"
+            self.update_text()
+            return None
+        self.message = _session_message(s, out)
+        rows = len(s.rows)
+        if select == "new" and rows > n0:
+            self.selected = rows - 1
+        elif self.selected is not None and self.selected >= rows:
+            self.selected = rows - 1 if rows else None
+        if self.ikd is not None and not _failed(out):
+            self.ikd_stale = True
+        self.update()
+        return out
+
+    def pick(self, screen_xy) -> int | None:
+        """Pick the face vertex under the display position ``screen_xy`` (x, y) [px, VTK's origin bottom left, as
+        the interactor reports the mouse] and add a point target there (:meth:`pick_vertex`). Returns the vertex
+        id, or None (and a message) when the face is not under it."""
+        import vtk
+
+        x, y = (float(v) for v in screen_xy)
+        picker = vtk.vtkCellPicker()
+        picker.SetTolerance(1e-4)
+        picker.PickFromListOn()
+        picker.AddPickList(self._mesh_actor)
+        self.plotter.render()
+        picker.Pick(x, y, 0.0, self.plotter.renderer)
+        cell = picker.GetCellId()
+        if cell < 0:
+            self.message = f"pick: no face vertex under ({x:.0f}, {y:.0f}) px"
+            self.update_text()
+            return None
+        tri = np.asarray(self.shot.rig.faces[cell], dtype=np.int64)
+        hit = np.asarray(picker.GetPickPosition(), dtype=np.float64)
+        v = int(tri[np.argmin(np.linalg.norm(self.points[tri] - hit, axis=1))])
+        self.pick_vertex(v)
+        return v
+
+    def pick_vertex(self, vertex_id: int):
+        """A point target (end effector, default falloff) on vertex ``vertex_id`` at the current frame; its handle
+        appears at the vertex's KD position. Key ``p`` calls it through :meth:`pick`."""
+        v = int(vertex_id)
+        if not 0 <= v < self.shot.rig.num_vertices:
+            self.message = f"pick: vertex {v} is not a vertex of the rig (0..{self.shot.rig.num_vertices - 1})"
+            self.update_text()
+            return None
+        return self._edit("add_point", self.time_s, v, select="new")
+
+    def set_group(self, name: str) -> None:
+        """The named group (:data:`kdfaces.rig.groups.GROUP_SHAPES`) that ``h``, ``v`` act on."""
+        if name not in _GROUPS:
+            raise KDInputError(f"group: expected one of {', '.join(_GROUPS)}, got {name!r}")
+        self.group = name
+        self.update_text()
+
+    def next_group(self) -> None:
+        """Key ``g``: the next named group."""
+        self.set_group(_GROUPS[(_GROUPS.index(self.group) + 1) % len(_GROUPS)])
+
+    def hold_group(self):
+        """Key ``h``: hold the named group where the kinematic pose has it at this frame (a subset constraint)."""
+        return self._edit("add_group", self.time_s, self.group, select="new")
+
+    def stop_group(self):
+        """Key ``v``: stop the named group at this frame (a velocity constraint, target 0)."""
+        return self._edit("add_velocity", self.time_s, self.group, select="new")
+
+    def add_pose(self, weights: dict | None = None, head_deg=None):
+        """Key ``o``: a pose constraint at this frame: shape ``weights`` (name → weight) and ``head_deg`` (3,)
+        [deg] (None: the kinematic pose's)."""
+        return self._edit("add_pose", self.time_s, weights=weights, head_deg=head_deg, select="new")
+
+    def drag_target(self, point_m, row: int | None = None):
+        """Dragging the handle: the point target of ``row`` (default the selected one) to ``point_m`` (3,) [m]."""
+        return self._edit("drag", self._row(row), np.asarray(point_m, dtype=np.float64))
+
+    def set_offset_mm(self, row, dx_mm: float, dy_mm: float, dz_mm: float):
+        """Typed offset: ``row``'s target (None: the selected row) at its kinematic position plus (dx, dy, dz)
+        [mm]."""
+        d = 1e-3 * np.array([dx_mm, dy_mm, dz_mm], dtype=np.float64)
+        return self._edit("set_field", self._row(row), "target", {"offset_m": [float(v) for v in d]})
+
+    def set_field(self, name: str, value, row: int | None = None):
+        """Edit field ``name`` (time_s, width_s, curve, falloff_m, enabled, label, target) of ``row`` (default the
+        selected one)."""
+        return self._edit("set_field", self._row(row), name, value)
+
+    def toggle_enabled(self, row: int | None = None):
+        """Key ``n``: enable or disable ``row`` (default the selected one)."""
+        r = self._row(row)
+        if r is None:
+            return None
+        return self._edit("set_field", r, "enabled", not bool(_get(self.session.rows[r], "enabled", True)))
+
+    def delete(self, row: int | None = None):
+        """Key ``Delete`` / ``x``: delete ``row`` (default the selected one)."""
+        return self._edit("delete", self._row(row))
+
+    def undo(self):
+        """Key ``u`` / ``ctrl+z``: undo the last edit."""
+        return self._edit("undo")
+
+    def redo(self):
+        """Key ``y``: redo the last undone edit."""
+        return self._edit("redo")
+
+    def save(self, path=None):
+        """Key ``s``: write the constraints back into the shot file (or ``path``); the session's message (written,
+        or why not) goes to the status line."""
+        return self._edit("save", path) if path is not None else self._edit("save")
+
+    def select_row(self, row) -> None:
+        """Select a row of the constraint panel and jump to its frame (the frame nearest its time)."""
+        rows = self._session().rows
+        if not rows:
+            self.selected = None
+            self.update()
+            return
+        self.selected = int(np.clip(int(row), 0, len(rows) - 1))
+        t = float(_get(rows[self.selected], "time_s"))
+        self.frame = int(np.argmin(np.abs(self.times - t)))
+        self.update()
+
+    def step_row(self, delta: int) -> None:
+        """Keys ``Down``/``Up``: select the next/previous row."""
+        rows = self._session().rows
+        if rows:
+            self.select_row(0 if self.selected is None else (self.selected + int(delta)) % len(rows))
+
+    def _row(self, row):
+        r = self.selected if row is None else int(row)
+        if r is None:
+            self.message = "no row selected (Up/Down select one)"
+        return r
+
+    # --- solving in a worker thread ----------------------------------------------------------------------------
+    @property
+    def solving(self) -> bool:
+        """Whether a solve is running in the worker thread."""
+        return self._solve_thread is not None and self._solve_thread.is_alive()
+
+    def solve_async(self) -> bool:
+        """Key ``i``: start the session's solve (warm start) in a worker thread; the window stays responsive, the
+        status line shows its progress, ``Escape`` cancels (:meth:`cancel_solve`) and the timer collects the result
+        (:meth:`poll_solve`). Returns False (with a message) when one is already running."""
+        s = self._session()
+        if self.solving:
+            self.message = "solve: already running (Esc cancels)"
+            self.update_text()
+            return False
+        self._cancel.clear()
+        self._solve_progress, self._solve_outcome = "", None
+
+        def progress(*args):
+            self._solve_progress = _progress_text(args)
+
+        def work():
+            try:
+                self._solve_outcome = ("done", s.solve(progress=progress, cancel=self._cancel.is_set))
+            except Exception as e:  # noqa: BLE001  (shown in the status line by poll_solve)
+                self._solve_outcome = ("error", e)
+
+        self._solve_thread = threading.Thread(target=work, name="kdfaces-view-solve", daemon=True)
+        self._solve_thread.start()
+        self.update_text()
+        return True
+
+    def cancel_solve(self) -> None:
+        """Key ``Escape``: ask a running solve to stop after its current sweep."""
+        if self.solving:
+            self._cancel.set()
+            self.message = "solve: cancelling..."
+            self.update_text()
+
+    def wait_solve(self, timeout_s: float | None = None) -> bool:
+        """Wait for the running solve (at most ``timeout_s`` [s]) and collect it; True when it finished."""
+        if self._solve_thread is not None:
+            self._solve_thread.join(timeout_s)
+        return self.poll_solve()
+
+    def poll_solve(self) -> bool:
+        """Collect a finished solve: show the IKD state of the session's result and its rows' errors; a failed or
+        cancelled one only says so. Returns True when a solve was collected."""
+        if self._solve_thread is None or self._solve_thread.is_alive() or self._solve_outcome is None:
+            return False
+        how, out = self._solve_outcome
+        self._solve_thread, self._solve_outcome = None, None
+        if how == "error":
+            self.message = f"solve: {out}"
+        else:
+            self.message = _session_message(self.session, out)
+            result = getattr(self.session, "result", None)
+            if result is not None and not self._cancel.is_set():
+                self.ikd, self.ikd_stale = result, False
+                self.ikd_message = f"IKD: {result.reason}, {result.iterations} sweeps, {result.wall_s:.2f} s, " \
+                                   f"{_error_text(result)}"
+                self.mode = "ikd"
+            elif self._cancel.is_set():
+                self.message = self.message or "solve: cancelled"
+        self.update()
+        return True
+
+    # --- the constraint panel and the handle -------------------------------------------------------------------
+    def panel_text(self) -> str:
+        """The constraint list: one row per session row (:func:`panel_row_text`), ``>`` at the selected one."""
+        if self.session is None:
+            return ""
+        rows = self.session.rows
+        head = "   time   kind          label          before   after mm  grad   on"
+        lines = [head] + [(">" if i == self.selected else " ") + " " + panel_row_text(r) for i, r in enumerate(rows)]
+        return "\n".join(lines) if rows else head + "\n  (no constraints: p, h, v or o adds one)"
+
+    def handle_point(self) -> np.ndarray | None:
+        """Where the selected point target's handle is drawn (3,) [m]: its target, when the row is a point
+        constraint at the displayed frame; else None."""
+        if self.session is None or self.selected is None or self.selected >= len(self.session.rows):
+            return None
+        row = self.session.rows[self.selected]
+        if _get(row, "kind") != "end_effector" or abs(float(_get(row, "time_s")) - self.time_s) > 0.5 * self.step_s:
+            return None
+        p = _row_point(self.session, self.selected)
+        return None if p is None else np.asarray(p, dtype=np.float64)
+
+    def _draw_handle(self) -> None:
+        p = self.handle_point()
+        self._handle_actor.SetVisibility(p is not None)
+        if p is not None:
+            self._handle_sphere.points = self._handle_rest + p
+        if self._off_screen:
+            return
+        if p is not None:
+            if self._handle_widget is None:
+                self._handle_widget = self.plotter.add_sphere_widget(self._guarded(self._on_drag), center=p,
+                                                                     radius=1.3 * _HANDLE_RADIUS_M,
+                                                                     color=_HANDLE_COLOR)
+            else:
+                self._handle_widget.SetCenter(*p)
+            self._handle_widget.On()
+        elif self._handle_widget is not None:
+            self._handle_widget.Off()
+
+    def _on_drag(self, center) -> None:
+        p = self.handle_point()
+        if p is None or not np.allclose(center, p, atol=1e-9):
+            self.drag_target(center)
+
+    def _authoring_keys(self, pl) -> None:
+        """The authoring keys of an interactive window (each calls one method above)."""
+        g = self._guarded
+        pl.add_key_event("p", g(lambda: self.pick(pl.iren.get_event_position())))
+        pl.add_key_event("g", g(self.next_group))
+        pl.add_key_event("h", g(self.hold_group))
+        pl.add_key_event("v", g(self.stop_group))
+        pl.add_key_event("o", g(self.add_pose))
+        pl.add_key_event("u", g(self.undo))
+        pl.add_key_event("z", g(lambda: self.undo() if pl.iren.interactor.GetControlKey() else None))
+        pl.add_key_event("y", g(self.redo))
+        pl.add_key_event("s", g(self.save))
+        pl.add_key_event("n", g(self.toggle_enabled))
+        pl.add_key_event("Delete", g(self.delete))
+        pl.add_key_event("x", g(self.delete))
+        pl.add_key_event("Up", g(lambda: self.step_row(-1)))
+        pl.add_key_event("Down", g(lambda: self.step_row(1)))
+        pl.add_key_event("Escape", g(self.cancel_solve))
 
 
 def check_screenshot_path(path, *, where: str = "--screenshot") -> Path:
@@ -520,3 +865,60 @@ def _error_text(result) -> str:
         if errs:
             parts.append(f"max error {scale * max(errs):.4f} {label}")
     return ", ".join(parts)
+
+
+#: Named groups the ``g`` key cycles (``h`` holds, ``v`` stops the current one).
+_GROUPS = ("jaw", "lips", "mouth", "brows", "cheeks", "eyelids", "nose", "cheek_left", "cheek_right")
+_HANDLE_COLOR = "#1a9850"
+_HANDLE_RADIUS_M = 0.003
+
+
+def _get(row, name: str, default=None):
+    """Field ``name`` of a session row (an object with attributes or a mapping)."""
+    if isinstance(row, dict):
+        return row.get(name, default)
+    return getattr(row, name, default)
+
+
+def _mm_text(v) -> str:
+    return "    -" if v is None or not np.isfinite(v) else f"{float(v):7.3f}"
+
+
+def panel_row_text(row) -> str:
+    """One row of the constraint panel: time [s], kind, label, error before/after [mm] (mm/s for velocity),
+    gradient ratio, enabled, and why it is not met (out of reach, conflicting), if so."""
+    grad = _get(row, "gradient_ratio")
+    why = _get(row, "why") or _get(row, "status") or ""
+    on = "on " if _get(row, "enabled", True) else "off"
+    label = str(_get(row, "label", "") or "")[:14]
+    text = (f"{float(_get(row, 'time_s')):5.2f} s  {str(_get(row, 'kind')):12s}  {label:14s} "
+            f"{_mm_text(_get(row, 'error_before_mm'))} {_mm_text(_get(row, 'error_after_mm'))}  "
+            f"{'  -' if grad is None else f'{float(grad):4.2f}'}  {on}")
+    return text + (f"  {why}" if why and why not in ("ok", "met", "converged") else "")
+
+
+def _session_message(session, out) -> str:
+    """The message of the session's last call: what it returned when that is text, else its ``message``."""
+    if isinstance(out, str):
+        return out
+    return str(getattr(session, "message", "") or "")
+
+
+def _failed(out) -> bool:
+    return out is False
+
+
+def _row_point(session, row: int):
+    """The target point (3,) [m] of a point row of ``session``."""
+    c = session.constraint(row) if hasattr(session, "constraint") else None
+    if c is not None:
+        return c.target
+    return _get(session.rows[row], "point_m")
+
+
+def _progress_text(args) -> str:
+    """A solve's progress callback arguments as status text."""
+    if len(args) >= 2:
+        it, err = args[0], np.asarray(args[1], dtype=np.float64)
+        return f"sweep {it}, max error {1e3 * float(err.max()):.3f} mm" if err.size else f"sweep {it}"
+    return " ".join(str(a) for a in args)

@@ -53,7 +53,7 @@ from kdfaces import defaults
 from kdfaces.errors import KDInputError
 
 __all__ = ["Collider", "FixedCollider", "RigidCollider", "SkinnedCollider", "ContactModel", "head_collider",
-           "closed_surface", "DHAT_FLOAT64_FAC"]
+           "attached_object_collider", "closed_surface", "DHAT_FLOAT64_FAC"]
 
 #: d̂ must be at least this × the scene's bounding-box diagonal: below it, float64 coordinates (relative round-off
 #: 1.1e-16) leave too few bits for the distance the barrier acts on.
@@ -246,6 +246,23 @@ def head_collider(rig, *, exclude_points=None, clearance_m: float | None = None,
     remap = np.full(len(V), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     return RigidCollider(V[used], remap[F], trajectory=trajectory, joint=joint, name="head")
+
+
+def attached_object_collider(model, rest_positions, rig, *, clearance_m: float | None = None,
+                             joint: str = "head") -> RigidCollider:
+    """The head of ``rig`` as a collider for an object attached to it (an :class:`~kdfem.fem.model.FEMModel` at
+    node positions ``rest_positions`` (N, 3) [m], e.g. its rest equilibrium): :func:`head_collider` minus the
+    triangles within ``clearance_m`` [m] (default :data:`kdfaces.defaults.ATTACH_DISTANCE_M`) of the object's
+    contact surface (its boundary without the faces of attached nodes, sampled finely). Where the object sits on
+    the head (its rest overlap) is not a contact; everywhere else the object cannot enter the head."""
+    x = np.asarray(rest_positions, dtype=np.float64)
+    F = model.mesh.boundary_faces()
+    attached = np.zeros(model.mesh.num_nodes, dtype=bool)
+    attached[model.attached] = True
+    F = F[~attached[F].any(axis=1)]
+    tri = _triangle_radii(np.asarray(rig.neutral, dtype=np.float64), np.asarray(rig.faces, dtype=np.int64))
+    M, _, _ = _subdivision(x, F, 2.0 * float(np.median(tri)))
+    return head_collider(rig, exclude_points=M @ x, clearance_m=clearance_m, joint=joint)
 
 
 @dataclass

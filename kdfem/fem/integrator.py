@@ -198,13 +198,26 @@ class ImplicitEuler:
     from there to the current shape, is the shared Newton matrix (default: the rest stiffness, rotated per node;
     attribute ``nodal`` = False rotates it by the bone instead, as before). The names ``h`` and ``tol`` (keyword
     and attribute) still work for one release, with a :class:`DeprecationWarning`.
+
+    ``contact``: a bound :class:`~kdfem.fem.contact.ContactModel`; :meth:`step` then takes the colliders' poses
+    (``obstacles``). A member whose whole step stays farther than d̂ from every collider (the broad phase's lower
+    bound, checked on the first guess and again on the result) is stepped exactly as without contact. Any other
+    member is stepped alone with the barrier (velocity form of IPC, Li et al. 2020 eq. 6):
+    E_c(v) = E(v) + (κ̃/h²)·B(x_n + h v), gradient r + (κ̃/h)∇B, Newton matrix P + κ̃∇²B⁺ (ipctk's per-collision
+    PSD projection). The shared factorization is kept: the Newton system (P + U Uᵀ)Δv = −r, U Uᵀ the eigen-split of
+    the barrier Hessian on the DOFs it touches, is solved exactly by the Woodbury identity with k + 1 solves of P
+    (k = the barrier Hessian's rank, a few per contact), so contact never refactors. Every line search starts at
+    ipctk's collision-free step size (CCD, TightInclusion) toward the Newton step, so no iterate intersects; κ̃ is
+    ipctk's ``initial_barrier_stiffness`` at the step's first guess and ``update_barrier_stiffness`` after each
+    iteration.
     """
 
     @renamed_kwargs(h="step_s", tol="tol_m")
     def __init__(self, model: FEMModel, step_s: float, *, tol_m: float = defaults.NEWTON_TOL_M, max_iter: int = 60,
                  slow: float = 0.7, force_it: int = 12, threads: int = defaults.THREADS,
-                 reference: np.ndarray | None = None):
+                 reference: np.ndarray | None = None, contact=None):
         h = step_s
+        self.contact = contact  # a bound kdfem.fem.contact.ContactModel, or None (no contact: the code path as before)
         self.model, self.step_s, self.tol_m, self.max_iter = model, float(h), float(tol_m), int(max_iter)
         self.slow, self.force_it, self.threads = float(slow), int(force_it), max(1, int(threads))
         m = model.free_masses
@@ -345,9 +358,12 @@ class ImplicitEuler:
         v1[members] = v
         return it
 
-    def step(self, state: FEMState, G1: np.ndarray, dG1: np.ndarray, *, where: str = "hat") -> None:
+    def step(self, state: FEMState, G1: np.ndarray, dG1: np.ndarray, *, where: str = "hat",
+             obstacles=None) -> None:
         """Advance every member to t + h in place; ``G1``, ``dG1`` (B, 4, 4): bone transform and its rate at t + h
-        (attached nodes follow x_a = G1·X_a, v_a = Ġ1·X_a)."""
+        (attached nodes follow x_a = G1·X_a, v_a = Ġ1·X_a). ``obstacles`` (with ``contact``): the colliders' poses
+        (C0, C1, K0, K1): vertices at t and t + h (B, Vc, 3) [m] and per collider its rigid transforms at t and
+        t + h (B, 4, 4) or None (:meth:`kdfem.fem.contact.ContactModel.collider_pose`)."""
         md, h = self.model, self.step_s
         att = md.attached
         B = len(state.x)
@@ -368,18 +384,215 @@ class ImplicitEuler:
             R = Qn
         else:  # each node's rotation from the reference shape to x_n
             R = Qn @ self._Q_ref
-        chunks = [c for c in np.array_split(np.arange(B), min(self.threads, B)) if len(c)]
-        if len(chunks) == 1 or self._pool is None:
-            its = [self._iterate(self.lus[0], state, np.arange(B), v1, Rn, Aw, cw, R, where)]
-        else:
-            its = list(self._pool.map(lambda k: self._iterate(self.lus[k], state, chunks[k], v1, Rn, Aw, cw, R, where,
-                                                              slot=k), range(len(chunks))))
+        contact = self.contact if obstacles is not None else None
+        members = np.arange(B)
+        near = np.zeros(B, dtype=bool)
+        if contact is not None:
+            guess = state.x + h * v1
+            near = ~self._clear(state.x, guess, obstacles, members)
+            members = np.flatnonzero(~near)
+            v_guess = v1.copy()
+        its = [0]
+        if len(members):
+            chunks = [members[c] for c in np.array_split(np.arange(len(members)), min(self.threads, len(members)))
+                      if len(c)]
+            if len(chunks) == 1 or self._pool is None:
+                its = [self._iterate(self.lus[0], state, members, v1, Rn, Aw, cw, R, where)]
+            else:
+                its = list(self._pool.map(lambda k: self._iterate(self.lus[k], state, chunks[k], v1, Rn, Aw, cw, R,
+                                                                  where, slot=k), range(len(chunks))))
+        if contact is not None:
+            if len(members):  # the result's whole step must stay clear too, else redo the member with contact
+                late = members[~self._clear(state.x[members], state.x[members] + h * v1[members], obstacles,
+                                            members)]
+                v1[late] = v_guess[late]
+                near[late] = True
+            for b in np.flatnonzero(near):
+                its.append(self._iterate_contact(self.lus[0], state, int(b), v1, Rn, Aw, cw, R, obstacles, where))
         self.iterations.append(max(its))
         state.x += h * v1
         state.x[:, att] = x_att1
         state.v_prev = state.v.copy()
         state.v[:] = v1
         state.steps += 1
+
+
+    # --- contact (kdfem.fem.contact) ----------------------------------------------------------------------------
+    def _clear(self, xa: np.ndarray, xb: np.ndarray, obstacles, members: np.ndarray) -> np.ndarray:
+        """(k,) bool: whether the path of members ``members`` from node positions ``xa`` to ``xb`` (k, N, 3) [m] with
+        the colliders moving from C0 to C1 stays farther than d̂ from every collider: the broad phase's lower bound
+        at the end, less the motion (in a rigid collider's own frame: the object's displacement relative to it;
+        else the object's plus the collider's largest displacement)."""
+        cm = self.contact
+        C0, C1, K0, K1 = obstacles
+        out = np.empty(len(members), dtype=bool)
+        if cm.self_contact:
+            out[:] = False
+            return out
+        nodes = cm.nodes
+        for j, b in enumerate(members):
+            xo_a, xo_b = xa[j, nodes], xb[j, nodes]
+            lb = cm.clearance(xo_b, C1[b], [None if g is None else g[b] for g in K1], margin_m=4 * cm.dhat_m)
+            ok = True
+            for i, bb in enumerate(cm._broad):
+                if K1[i] is not None:
+                    g0, g1 = K0[i][b], K1[i][b]
+                    qa = (xo_a - g0[:3, 3]) @ g0[:3, :3]
+                    qb = (xo_b - g1[:3, 3]) @ g1[:3, :3]
+                    motion = float(np.linalg.norm(qb - qa, axis=1).max())
+                else:
+                    s = bb.offset - cm.num_object
+                    motion = float(np.linalg.norm(xo_b - xo_a, axis=1).max()) + float(
+                        np.linalg.norm(C1[b, s:s + bb.count] - C0[b, s:s + bb.count], axis=1).max())
+                ok &= lb[i] - motion > cm.dhat_m
+            out[j] = ok
+        return out
+
+    def _barrier(self, V: np.ndarray):
+        """The collision set at collision-mesh vertices ``V`` (Vcm, 3) [m] and B (unit stiffness) there."""
+        import ipctk
+
+        cm = self.contact
+        col = ipctk.NormalCollisions()
+        col.build(cm.mesh, V, cm.dhat_m)
+        return col, (float(cm.barrier(col, cm.mesh, V)) if len(col) else 0.0)
+
+    def _iterate_contact(self, lu, state, b: int, v1, Rn, Aw, cw, R, obstacles, where: str) -> int:
+        """Minimise E + (κ̃/h²)B for member ``b`` alone, in place on v1[b] (class docstring); returns iterations."""
+        import ipctk
+
+        cm, h, fr = self.contact, self.step_s, self.model.free
+        nodes, fi, n = cm.nodes, cm.free_index, cm.num_object
+        C0, C1 = obstacles[0][b], obstacles[1][b]
+        sl = slice(b, b + 1)
+        xn, vn, Rm, Awm, cwm = state.x[sl], state.v[sl], Rn[sl], Aw[sl], cw[sl]
+        Vn = cm.vertices(xn[0, nodes], C0)
+
+        def verts(v):
+            return cm.vertices(xn[0, nodes] + h * v[0, nodes], C1)
+
+        # a first guess reached from (x_n, C0) without crossing: the extrapolated one, else the last velocity, else
+        # the free nodes at rest (CCD of the straight path, the colliders moving too)
+        v = None
+        for k in range(3):
+            cand = v1[sl].copy()  # attached nodes: exact in every guess
+            if k == 1:
+                cand[:, fr] = vn[:, fr]
+            elif k == 2:
+                cand[:, fr] = 0.0
+            if ipctk.compute_collision_free_stepsize(cm.mesh, Vn, verts(cand)) >= 1.0:
+                v = cand
+                break
+        if v is None:
+            raise SimulationBlowUpError(f"{where}: a collider moves through the object within one step of "
+                                        f"{h:g} s (batch member {b}); use a smaller step_s")
+
+        def energy(v, kappa):
+            E, r, det, scale = self._potential(xn, vn, v, Rm, Awm, cwm)
+            V = verts(v)
+            col, Bv = self._barrier(V)
+            E = E[0] + kappa / h ** 2 * Bv
+            r = r[0]
+            gB = None
+            if len(col):
+                gB = cm.barrier.gradient(col, cm.mesh, V).reshape(-1, 3)[:n]
+                r = r.copy()
+                r[fi] += kappa / h * gB
+            return E, r, det[0], scale[0], col, V, gB
+
+        E, r, det, scale, col, V, gB = energy(v, 1.0)
+        if self.contact.kappa is not None:
+            kappa, kappa_max = float(self.contact.kappa), float(self.contact.kappa)
+        elif len(col):  # IPC §4.3: κ̃ balancing the incremental potential's gradient (position form: h·r)
+            g_e = np.zeros((cm.num_vertices, 3))
+            g_e[:n] = h * (r - gB / h)[fi]
+            g_b = np.zeros((cm.num_vertices, 3))
+            g_b[:n] = gB
+            kappa, kappa_max = ipctk.initial_barrier_stiffness(cm.scene_size_m, cm.barrier.barrier, cm.dhat_m,
+                                                                cm.mean_mass_kg, g_e.ravel(), g_b.ravel())
+        else:
+            kappa, kappa_max = cm.kappa_min, cm.kappa_max
+        E, r, det, scale, col, V, gB = energy(v, kappa)
+        prev_d = np.sqrt(col.compute_minimum_distance(cm.mesh, V)) if len(col) else np.inf
+        prev = np.inf
+        it = 0
+        while True:
+            it += 1
+            if it > self.max_iter:
+                raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
+                                            f"iterations (batch member {b})")
+            d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa)
+            size = float(np.abs(d).max())
+            if not np.isfinite(d).all():
+                raise SimulationBlowUpError(f"{where}: non-finite Newton update with contact in iteration {it}")
+            vt = v.copy()
+            vt[0, fr] += d
+            t = min(1.0, float(ipctk.compute_collision_free_stepsize(cm.mesh, V, verts(vt))))
+            slope = float((d * r).sum())
+            while True:
+                vt = v.copy()
+                vt[0, fr] += t * d
+                Et, rt, dt, st, colt, Vt, gBt = energy(vt, kappa)
+                if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < self.tol_m):
+                    break
+                t *= 0.5
+                if t < 1e-8:
+                    raise SimulationBlowUpError(f"{where}: line search with contact found no decrease (batch "
+                                                f"member {b})")
+            v, E, r, col, V, gB = vt, Et, rt, colt, Vt, gBt
+            if h * t * size < self.tol_m:
+                break
+            if len(col) and self.contact.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
+                dmin = float(np.sqrt(col.compute_minimum_distance(cm.mesh, V)))
+                k2 = float(ipctk.update_barrier_stiffness(prev_d, dmin, kappa_max, kappa, cm.scene_size_m))
+                prev_d = dmin
+                if k2 != kappa:
+                    kappa = k2
+                    E, r, det, scale, col, V, gB = energy(v, kappa)
+            if size > self.slow * prev and state.precond[b] is None and it >= 3:
+                state.precond[b] = self._factor(xn[0] + h * v[0])
+            prev = size
+        v1[b] = v[0]
+        self.last_kappa = kappa
+        return it
+
+    def _contact_direction(self, lu, state, b: int, r: np.ndarray, Rb: np.ndarray, col, V, kappa: float):
+        """Δv = −(P + κ̃ H⁺)⁻¹ r (F, 3) for member ``b``: P's factorization and the Woodbury identity on the barrier
+        Hessian's eigen-split over the DOFs it touches (class docstring)."""
+        cm = self.contact
+        F = r.shape[0]
+
+        def pinv(Y):  # P⁻¹ Y for Y (k, F, 3)
+            k = len(Y)
+            return -self._solve(lu, state, [b] * k, Y, np.ascontiguousarray(np.broadcast_to(Rb, (k, *Rb.shape))))
+
+        y0 = pinv(r[None])[0]
+        if not len(col):
+            return -y0
+        import ipctk
+
+        n = cm.num_object
+        H = cm.barrier.hessian(col, cm.mesh, V, ipctk.PSDProjectionMethod.CLAMP).tocsr()[: 3 * n, : 3 * n]
+        H = (kappa * H).tocoo()
+        dof = (3 * cm.free_index[:, None] + np.arange(3)).ravel()  # collision-mesh object DOF → free DOF
+        touched = np.unique(np.concatenate([H.row, H.col]))
+        if not len(touched):
+            return -y0
+        Hs = np.zeros((len(touched), len(touched)))
+        pos = np.searchsorted(touched, H.row), np.searchsorted(touched, H.col)
+        np.add.at(Hs, pos, H.data)
+        lam, Q = np.linalg.eigh(0.5 * (Hs + Hs.T))
+        keep = lam > 1e-12 * max(lam.max(), 0.0) if lam.max() > 0 else np.zeros(len(lam), dtype=bool)
+        if not keep.any():
+            return -y0
+        U = Q[:, keep] * np.sqrt(lam[keep])  # (s, k)
+        rows = dof[touched]
+        Ufull = np.zeros((U.shape[1], 3 * F))
+        Ufull[:, rows] = U.T
+        Z = pinv(Ufull.reshape(-1, F, 3)).reshape(U.shape[1], 3 * F)  # (k, 3F): P⁻¹ U, as rows
+        S = np.eye(U.shape[1]) + Z[:, rows] @ U  # I + Uᵀ P⁻¹ U
+        w = np.linalg.solve(S, U.T @ y0.ravel()[rows])
+        return -(y0.ravel() - Z.T @ w).reshape(F, 3)
 
 
 def static_equilibrium(model: FEMModel, *, G: np.ndarray | None = None, rtol: float = 1e-8, max_iter: int = 60,

@@ -46,6 +46,14 @@ class HatSystem:
     :class:`kdfaces.motion.KinematicTrajectory` standing for its joints
     (:func:`~kdfem.fem.attachment.joint_trajectory`).
     ``observe`` returns node positions (B, N, 3) [m]; :meth:`surface` maps them to the embedded render surface.
+
+    ``colliders``: kinematic surfaces the hat cannot pass through (:mod:`kdfem.fem.contact`; e.g.
+    :func:`~kdfem.fem.contact.attached_object_collider` for the head), made into a
+    :class:`~kdfem.fem.contact.ContactModel` on the model's boundary (attached faces left out) with the default d̂
+    and adaptive κ; ``contact``: such a model given directly (then ``colliders`` is ignored). Default None: no
+    contact, the results of before bit for bit. With contact, a window start that intersects a collider is a
+    :class:`~kdfaces.errors.KDInputError` (:meth:`initial_state`), and every step passes the colliders' poses at
+    t and t + h (from the trajectory the step is given) to the stepper.
     """
 
     model: FEMModel
@@ -53,12 +61,20 @@ class HatSystem:
     tol_m: float = defaults.NEWTON_TOL_M
     threads: int = defaults.THREADS
     joint: str = "head"
+    colliders: list | None = None
+    contact: object | None = None
 
     tol = renamed_attribute("tol_m")
 
     def __post_init__(self):
         self.threads = check_count(self.threads, "threads")
         self.rest_equilibrium = static_equilibrium(self.model)  # (N, 3) [m], head in its rest pose
+        if self.contact is None and self.colliders:
+            from .contact import ContactModel
+
+            self.contact = ContactModel(self.model.mesh.boundary_faces(), self.colliders)
+        if self.contact is not None and getattr(self.contact, "mesh", None) is None:
+            self.contact.bind(self.model)
         self._steppers: dict[float, ImplicitEuler] = {}
         self._pending = None  # (trajectory, start times, step, (G, Ġ) on the window's step grid) from prepare
         self._head_cache: dict = {}  # head transforms on the step grid, by content version (head_on_grid)
@@ -69,7 +85,7 @@ class HatSystem:
         key = (round(float(step_s), 12), int(slot))
         if key not in self._steppers:
             self._steppers[key] = ImplicitEuler(self.model, step_s, tol_m=self.tol_m, threads=1,
-                                                 reference=self.rest_equilibrium)
+                                                 reference=self.rest_equilibrium, contact=self.contact)
         return self._steppers[key]
 
     def run_windows(self, trajectory, start_times, steps: int, step_s: float, progress=None) -> np.ndarray:
@@ -102,10 +118,13 @@ class HatSystem:
             state = FEMState(x=apply_frame(G[0, idx], self.rest_equilibrium),
                              v=apply_frame(dG[0, idx], self.rest_equilibrium))
             where = f"hat (batch members {idx[0]}–{idx[-1]}, windows from {t0[idx[0]]:.4g} s)"
+            if self.contact is not None:
+                self._check_contact_start(state, trajectory, t0[idx])
             for k in range(n):
                 if stop.is_set():
                     return state.x
-                steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx], where=where)
+                steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx], where=where,
+                                    obstacles=self.obstacles(trajectory, t0[idx] + k * h, h))
                 if progress is not None:
                     progress.update(len(idx))
             return state.x
@@ -187,7 +206,25 @@ class HatSystem:
             G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(t0)
         x = apply_frame(G, self.rest_equilibrium)
         v = apply_frame(dG, self.rest_equilibrium)  # Ġ·X: rotation rate times X plus translation rate
-        return FEMState(x=x, v=v, head=head)
+        state = FEMState(x=x, v=v, head=head)
+        if self.contact is not None:
+            self._check_contact_start(state, trajectory, t0)
+        return state
+
+    def obstacles(self, trajectory, times, step_s: float):
+        """The colliders' poses for a step from ``times`` (B,) [s] to ``times`` + ``step_s``: (C0, C1, K0, K1),
+        vertices (B, Vc, 3) [m] and rigid transforms per collider (:meth:`ContactModel.collider_pose`); None
+        without contact."""
+        if self.contact is None:
+            return None
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        C0, K0 = self.contact.collider_pose(t, trajectory)
+        C1, K1 = self.contact.collider_pose(t + step_s, trajectory)
+        return C0, C1, K0, K1
+
+    def _check_contact_start(self, state: FEMState, trajectory, times) -> None:
+        C, K = self.contact.collider_pose(np.atleast_1d(times), trajectory)
+        self.contact.check_start(state.x, C, K, where="hat")
 
     def step(self, state: FEMState, trajectory, times: np.ndarray, step_s: float) -> None:
         """One implicit Euler step of ``step_s`` [s] for every member, attached nodes following the head."""
@@ -199,7 +236,7 @@ class HatSystem:
             G1, dG1 = hd[0][k], hd[1][k]
         else:  # not prepared, or a different step: evaluate the head at t + h
             G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(t + step_s)
-        self.stepper(step_s).step(state, G1, dG1)
+        self.stepper(step_s).step(state, G1, dG1, obstacles=self.obstacles(trajectory, t, step_s))
 
     def observe(self, state: FEMState) -> np.ndarray:
         """Node positions of every member (B, N, 3) [m]."""

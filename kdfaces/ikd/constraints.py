@@ -312,13 +312,18 @@ def plane_constraint(time_s, normal, offset_m: float, vertices, basis: Basis, *,
     return dataclasses.replace(ee, kind="plane", target=off, normal=n / norm, inequality=side == "below")
 
 
-def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None
-                     ) -> tuple[Correction, list[int]]:
+def build_correction(constraints: list[Constraint], state_shape, *, where: str | None = None,
+                     correction_cache: dict | None = None) -> tuple[Correction, list[int]]:
     """Slots for the constraints (one per time and kind; constraints at one time share it) and each one's slot.
 
     Raises :class:`KDInputError` for constraints at the same time with different bells or conflicting targets,
     naming both as ``constraints[i]`` (their :attr:`~Constraint.index`, else their position in the list) after
     ``where`` (e.g. the shot file) when given.
+
+    ``correction_cache``: a dict kept between calls (:class:`~kdfaces.ikd.SolveCache`'s ``corrections``): the
+    interpolation system and its LU depend only on the slots (times, kinds, bells) and the state shape, so a later
+    call with the same slots gets a zeroed copy of the cached correction instead of a new factorisation (its
+    ``factorizations`` is then 0).
     """
     keys: dict[tuple[float, str], list[int]] = {}
     for i, c in enumerate(constraints):
@@ -337,7 +342,18 @@ def build_correction(constraints: list[Constraint], state_shape, *, where: str |
             slot_of[i] = a
         slot_of[members[0]] = a
         slots.append(Slot(first.time_s, first.slot_kind, first.basis))
-    return Correction(slots, state_shape), slot_of
+    if correction_cache is None:
+        return Correction(slots, state_shape), slot_of
+    key = (tuple(slots), tuple(state_shape))
+    template = correction_cache.get(key)
+    if template is None:
+        correction_cache[key] = template = Correction(slots, state_shape)
+        return template.copy(), slot_of  # the cached one stays zero: its LU is all a later call takes
+    corr = template.copy()
+    corr.values = np.zeros_like(template.values)
+    corr.coefficients = np.zeros_like(template.coefficients)
+    corr.factorizations = 0
+    return corr, slot_of
 
 
 def _pair(constraints: list[Constraint], i: int, j: int, where: str | None) -> str:

@@ -65,7 +65,7 @@ from .corrections import POSITION, CorrectedTrajectory, Correction
 from .lifts import Surface, gradient_ratio, seam_ratio
 from .secant import LINEARITY_SLACK, Secant, no_way_closer
 
-__all__ = ["IKDResult", "solve_ikd", "constraint_errors", "independent_check", "UPDATES",
+__all__ = ["IKDResult", "SolveCache", "solve_ikd", "constraint_errors", "independent_check", "UPDATES",
            "OffGridConstraintWarning"]
 
 UPDATES = ("paper", "secant")
@@ -73,6 +73,65 @@ UPDATES = ("paper", "secant")
 MAX_CORRECTION_RAD = 0.5 * np.pi
 #: Largest correction of a joint-angle *rate* (a velocity slot's Δθ̇) [rad/s] before a target is out of reach.
 MAX_CORRECTION_RAD_PER_S = 4.0 * np.pi
+
+
+class SolveCache:
+    """What consecutive solves of one system and trajectory share (interactive authoring, paper §6.6: change a
+    target, solve again). Pass one to :func:`solve_ikd` as ``cache=``; nothing in it is ever stale, because each
+    entry is keyed by everything that determines it:
+
+    - ``surface``: the rest mesh of the smooth lifts with its per-constraint factorisations (geodesic distances and
+      ``min_quad_with_fixed`` precomputations), keyed inside :class:`~kdfaces.ikd.Surface` by (vertex set,
+      end-effector weights, falloff_m) — a target's value is not part of it, so moving a target refactors nothing;
+      kept while the trajectory's rig is the same object;
+    - ``corrections``: the interpolation system A and its LU (eq. 7, 10, 11) of each set of slots (times, kinds,
+      bells): a :class:`~kdfaces.ikd.Correction` template that a solve with the same slots copies instead of
+      factoring (see :func:`~kdfaces.ikd.build_correction`);
+    - ``models``: each constraint's secant model (:class:`~kdfaces.ikd.secant.Secant`: how its measured quantity
+      answers its correction), keyed by the constraint without its target (kind, time, vertices, weights, bell,
+      falloff, damping) and by the whole set of slots (a slot's bell shape depends on its neighbours through A);
+      dropped whenever the system, the trajectory, the window or the step change. A reused model is trusted for
+      the first step only as far as the solver's linearity check allows: a step that does not shrink the error as
+      predicted drops it and the next step is a fresh trial (the paper's update), so a reused model can cost a
+      sweep, never a wrong answer.
+
+    ``stats`` counts what was reused: ``lu_reused``, ``lu_factorizations``, ``models_reused``.
+    """
+
+    def __init__(self):
+        self.surface: Surface | None = None
+        self.corrections: dict = {}
+        self.models: dict = {}
+        self._context = None
+        self._rig = None
+        self.stats = {"lu_reused": 0, "lu_factorizations": 0, "models_reused": 0}
+
+    def begin(self, system, trajectory, window_s: float, step_s: float, update: str) -> None:
+        """Start a solve in this context: drop the secant models when any of it changed (and the surface when the
+        trajectory's rig did)."""
+        context = (system, trajectory, float(window_s), float(step_s), update)
+        old = self._context
+        if old is None or len(old) != len(context) or any(
+                (a is not b) if k < 2 else (a != b) for k, (a, b) in enumerate(zip(old, context))):
+            self.models = {}
+        rig = getattr(trajectory, "rig", None)
+        if rig is not self._rig:
+            self.surface = None
+        self._context, self._rig = context, rig
+
+    def clear(self) -> None:
+        """Forget everything (a changed mesh or dynamics)."""
+        self.__init__()
+
+    @staticmethod
+    def model_key(c: Constraint, slots: tuple) -> tuple:
+        """What determines a constraint's response to its correction: everything but its target."""
+        w = None if c.weights is None else np.asarray(c.weights).tobytes()
+        n = None if c.normal is None else np.asarray(c.normal).tobytes()
+        return (c.kind, round(c.time_s, 9), np.asarray(c.indices).tobytes(), w, c.basis, float(c.falloff_m),
+                float(c.pinv_damping), n, bool(c.inequality), slots)
+
+
 class OffGridConstraintWarning(UserWarning):
     """A constraint time falls between frames: it is met there, but a cache of the frames never shows it."""
 
@@ -85,7 +144,8 @@ class IKDResult:
         correction: f(t), evaluable at any time (:meth:`Correction.evaluate`).
         trajectory: x_K + f, ready for ``simulate_kd`` or rendering.
         converged: every constraint within tolerance.
-        reason: "converged", "max_iterations", "diverged", "out_of_reach", "stalled" or "time_limit".
+        reason: "converged", "max_iterations", "diverged", "out_of_reach", "stalled", "time_limit" or
+            "cancelled" (the ``cancel`` callable of :func:`solve_ikd` said so between sweeps).
         iterations: sweeps done.
         history: (iterations + 1, C) error of each constraint before the first sweep and after each sweep [m, m/s].
         states: final KD state at each constraint time, list of (N, 3) arrays.
@@ -95,7 +155,9 @@ class IKDResult:
             clearance before the first round and after each round [m] (empty without one).
         surface: the mesh the residuals were lifted on (:class:`~kdfaces.ikd.Surface`), or None (sharp lifts,
             or a non-vertex state).
-        extra: ``lift_factorizations`` and ``lift_solves`` of the smooth lifts.
+        extra: ``lift_factorizations`` and ``lift_solves`` of the smooth lifts; ``lu_factorizations`` of the
+            interpolation system (0 when a :class:`SolveCache` had it) and ``models_reused`` (secant models from
+            the cache).
     """
 
     correction: Correction
@@ -282,7 +344,8 @@ def solve_ikd(system, trajectory, constraints: list, *, window_s: float, step_s:
               tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
               max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
               snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S,
-              surface: Surface | None = None, callback=None, max_rounds: int = 10) -> IKDResult:
+              surface: Surface | None = None, callback=None, max_rounds: int = 10,
+              warm_start: Correction | None = None, cancel=None, cache: SolveCache | None = None) -> IKDResult:
     """Solve for a correction f so that KD states of x_K + f meet ``constraints`` (Algorithm 1 or secant).
 
     Args:
@@ -303,19 +366,27 @@ def solve_ikd(system, trajectory, constraints: list, *, window_s: float, step_s:
         surface: the mesh smooth lifts live on (:class:`~kdfaces.ikd.Surface`); default the rest mesh of
             ``trajectory.rig`` when there is one (no rig: every residual lifts onto its own vertices only). Share one
             between solves of the same rig to reuse the lifts' factorisations.
-        callback: optional ``callback(iteration, errors)`` after each sweep.
+        callback: optional ``callback(iteration, errors)`` after each sweep (``errors`` (C,) [m or m/s]).
+        warm_start: a previous solution's correction: each slot of this solve whose time and kind it has starts
+            from its value there (interactive editing: change a target, solve again from where the last solve
+            ended). None: start from f = 0.
+        cancel: optional callable, asked before every sweep; when it returns True the solve stops with reason
+            "cancelled" and the correction reached so far.
+        cache: a :class:`SolveCache` shared by consecutive solves of this system and trajectory: lift
+            factorisations, interpolation LUs and secant models that the edit did not change are reused.
     """
     constraints = list(constraints)
     options = dict(window_s=window_s, step_s=step_s, update=update, step_scale=step_scale, tolerance_m=tolerance_m,
                    tolerance_mps=tolerance_mps, max_iterations=max_iterations, max_correction_m=max_correction_m,
-                   snap_to_frames=snap_to_frames, max_wall_s=max_wall_s, surface=surface, callback=callback)
+                   snap_to_frames=snap_to_frames, max_wall_s=max_wall_s, surface=surface, callback=callback,
+                   cancel=cancel, cache=cache)
     clearances = [c for c in constraints if isinstance(c, Clearance)]
     if not clearances:
-        return _solve(system, trajectory, constraints, **options)
+        return _solve(system, trajectory, constraints, warm=warm_start, **options)
     if max_rounds < 1:
         raise KDInputError(f"solver max_rounds: expected ≥ 1, got {max_rounds}")
     return _solve_active_set(system, trajectory, [c for c in constraints if not isinstance(c, Clearance)],
-                             clearances, max_rounds=max_rounds, **options)
+                             clearances, max_rounds=max_rounds, warm=warm_start, **options)
 
 
 def _clearance_check(system, trajectory, clearances, window_s, step_s):
@@ -331,13 +402,13 @@ def _clearance_check(system, trajectory, clearances, window_s, step_s):
     return out, [float(c.clearance_m(x).min()) for c, (_, x) in zip(clearances, out)]
 
 
-def _solve_active_set(system, trajectory, equalities, clearances, *, max_rounds, **options) -> IKDResult:
+def _solve_active_set(system, trajectory, equalities, clearances, *, max_rounds, warm=None, **options) -> IKDResult:
     """Active-set rounds (see :mod:`kdfaces.ikd.clearance`): solve, check every pass, add constraints, repeat.
     Round 1 solves the equality constraints alone (e.g. the paper's point constraint at t_i), when there are any."""
     t0 = _time.perf_counter()
     window_s, step_s = options["window_s"], options["step_s"]
     active = list(equalities)
-    result, warm = None, None
+    result = None
     iterations, rounds, history = 0, 0, []
     checks, clear0 = _clearance_check(system, trajectory, clearances, window_s, step_s)
     clear = [min(clear0)]
@@ -400,9 +471,10 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
            tolerance_m: float = defaults.TOLERANCE_M, tolerance_mps: float = defaults.TOLERANCE_MPS,
            max_iterations: int = defaults.MAX_ITERATIONS, max_correction_m: float = defaults.MAX_CORRECTION_M,
            snap_to_frames: bool = False, max_wall_s: float = defaults.MAX_SOLVE_WALL_S,
-           surface: Surface | None = None, callback=None, warm: Correction | None = None) -> IKDResult:
+           surface: Surface | None = None, callback=None, warm: Correction | None = None, cancel=None,
+           cache: SolveCache | None = None) -> IKDResult:
     """The equality solve behind :func:`solve_ikd`; ``warm``: a correction whose slot values (matched by time and
-    kind) start this one."""
+    kind) start this one; ``cancel``, ``cache``: see :func:`solve_ikd`."""
     if update not in UPDATES:
         raise KDInputError(f"solver update {update!r} unknown; expected one of {UPDATES}")
     if not (0.0 < step_scale <= 1.0):
@@ -424,13 +496,21 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
             raise KDInputError(f"constraint {c.name}: a velocity constraint needs t − h ≥ shot start "
                                f"({c.time_s} − {h} < {start})")
     t0 = _time.perf_counter()
+    if cache is not None:
+        cache.begin(system, trajectory, window_s, h, update)
+        if surface is None:
+            surface = cache.surface
     kd = _KD(system, window_s, h)
     pairs = kd.at(trajectory, constraints)
     observed = pairs[0][0].shape
     for c in constraints:
         c.check_state(observed[0])
     lift = _Lifter(system, trajectory, observed, constraints, surface)
-    corr, slot_of = build_correction(constraints, lift.state_shape)
+    if cache is not None and lift.surface is not None:
+        cache.surface = lift.surface
+    corr, slot_of = build_correction(constraints, lift.state_shape,
+                                     correction_cache=None if cache is None else cache.corrections)
+    lu_factorizations = corr.factorizations
     traj_f = CorrectedTrajectory(trajectory, corr)
     if warm is not None and warm.values.any():
         prior = {(round(sl.time_s, 9), sl.kind): v for sl, v in zip(warm.slots, warm.values)}
@@ -447,9 +527,25 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
     res, err = constraint_errors(constraints, pairs, h)
     history = [err]
     models = [Secant(c, lift.through) for c in constraints]
+    models_reused = 0
+    if cache is not None:
+        cache.stats["lu_factorizations"] += lu_factorizations
+        cache.stats["lu_reused"] += 1 - lu_factorizations
+        for i, c in enumerate(constraints):
+            key = SolveCache.model_key(c, corr.slots)
+            old = cache.models.get(key)
+            if old is not None and (old.pairs or old.response is not None):
+                models[i] = old
+                old.trusted = True  # checked after its first step like any other (see SolveCache)
+                models_reused += 1
+            cache.models[key] = models[i]
+        cache.stats["models_reused"] += models_reused
     stationary = np.zeros(len(constraints), dtype=bool)  # a trial found no way closer: out of reach (frozen)
     it = 0
     while it < max_iterations and not (err <= tol).all():
+        if cancel is not None and cancel():
+            reason = "cancelled"
+            break
         it += 1
         if update == "paper":
             for i, c in enumerate(constraints):
@@ -532,7 +628,7 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
                      converged=bool((err <= tol).all()), reason=reason, iterations=it, history=np.array(history),
                      states=[x for x, _ in pairs], wall_s=_time.perf_counter() - t0, kd_states=kd.states,
                      kd_calls=kd.calls, update=update, step_scale=step_scale, surface=lift.surface,
-                     extra=lift.counts())
+                     extra={**lift.counts(), "lu_factorizations": lu_factorizations, "models_reused": models_reused})
 
 
 @renamed_kwargs(window="window_s", h="step_s")

@@ -134,6 +134,7 @@ class ConstraintTable(_Table):
     ease_out_s: Seconds | None = None
     label: str | None = None
     falloff_m: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] | None = None
+    enabled: bool = True  # false: kept in the file (the authoring session's disabled rows), not solved
 
 
 class SolverTable(_Table):

@@ -166,7 +166,8 @@ class Shot:
     def constraints(self, trajectory=None) -> list[Constraint]:
         """The shot's constraints, targets resolved against ``trajectory`` (default the kinematic trajectory)."""
         traj = self.trajectory if trajectory is None else trajectory
-        out = [self._constraint(t, i, traj) for i, t in enumerate(self.constraint_tables)]
+        out = [self._constraint(t, i, traj) for i, t in enumerate(self.constraint_tables)
+               if t.get("enabled", True)]  # enabled = false: kept in the file, not solved
         if out:
             build_correction(out, (self.rig.num_vertices, 3), where=str(self.path))  # conflicts: errors now
         return out

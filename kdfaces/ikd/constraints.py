@@ -320,7 +320,7 @@ def build_correction(constraints: list[Constraint], state_shape, *, where: str |
     naming both as ``constraints[i]`` (their :attr:`~Constraint.index`, else their position in the list) after
     ``where`` (e.g. the shot file) when given.
 
-    ``correction_cache``: a dict kept between calls (:class:`~kdfaces.ikd.SolveCache`'s ``corrections``): the
+    ``correction_cache``: a dict kept between calls (:class:`~kdfaces.ikd.solver.SolveCache`'s ``corrections``): the
     interpolation system and its LU depend only on the slots (times, kinds, bells) and the state shape, so a later
     call with the same slots gets a zeroed copy of the cached correction instead of a new factorisation (its
     ``factorizations`` is then 0).

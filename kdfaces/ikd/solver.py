@@ -86,7 +86,7 @@ class SolveCache:
       kept while the trajectory's rig is the same object;
     - ``corrections``: the interpolation system A and its LU (eq. 7, 10, 11) of each set of slots (times, kinds,
       bells): a :class:`~kdfaces.ikd.Correction` template that a solve with the same slots copies instead of
-      factoring (see :func:`~kdfaces.ikd.build_correction`);
+      factoring (see :func:`~kdfaces.ikd.constraints.build_correction`);
     - ``models``: each constraint's secant model (:class:`~kdfaces.ikd.secant.Secant`: how its measured quantity
       answers its correction), keyed by the constraint without its target (kind, time, vertices, weights, bell,
       falloff, damping) and by the whole set of slots (a slot's bell shape depends on its neighbours through A);

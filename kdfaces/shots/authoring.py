@@ -25,7 +25,7 @@ says so in its ``status`` and :meth:`AuthoringSession.solve` refuses until it is
 a constraint says why in its row (out of reach, not met within the sweeps, ...).
 
 Solving while you edit: :meth:`AuthoringSession.solve` warm-starts from the previous solution's correction, and its
-:class:`~kdfaces.ikd.SolveCache` reuses every lift factorisation, interpolation LU and secant model the edit did not
+:class:`~kdfaces.ikd.solver.SolveCache` reuses every lift factorisation, interpolation LU and secant model the edit did not
 change. The solution of every constraint set solved is remembered (the last :data:`SOLUTIONS_KEPT`), so an undo
 back to a solved state shows that solution again without solving. The first solve of a session starts from f = 0,
 exactly as ``kdfaces run`` does, so a file saved after it (or after an undo back to it) reproduces the session's
@@ -215,7 +215,7 @@ class AuthoringSession:
         system, trajectory (x_K), window_s [s], step_s [s]: what the solves simulate.
         result: the current :class:`~kdfaces.ikd.IKDResult` (None before a solve, or when the rows changed to a set
             not solved yet: see :attr:`stale`); status: the last message; messages: every message.
-        cache: the :class:`~kdfaces.ikd.SolveCache` shared by the session's solves.
+        cache: the :class:`~kdfaces.ikd.solver.SolveCache` shared by the session's solves.
     """
 
     def __init__(self, shot_path, *, rig=None, window_s=None, device: str = "cpu", threads: int = defaults.THREADS,

@@ -8,8 +8,8 @@ PNGs, and commit them:
 Every reference of ``render_references`` is kinematic (rig + renderer only), so tuning the dynamics never
 invalidates them; it is also what tests/test_render.py calls to compare a fresh render with the stored one.
 ``authoring_references`` (part of them) are the authoring viewers' (issue 26: target handles, the constraint
-panel), also compared by tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, so they do not depend on the dynamics
-either.
+panel), also compared by tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, and the face's
+is kinematic, so they do not depend on the dynamics either.
 """
 
 from __future__ import annotations
@@ -61,15 +61,46 @@ def hat_target_image(viewer) -> np.ndarray:
     viewer.set_frame(0)
     viewer.add_tip_target()
     viewer.offset_tip_target_mm(0.0, 30.0, 0.0)
+    viewer._text.SetText(2, "")  # the status line shows wall-clock ms per KD state: not part of the reference
+    viewer.plotter.render()
+    return np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
+
+
+def authoring_panel_image(viewer) -> np.ndarray:
+    """``kdfaces view`` with an authoring session on (a copy of) the reference shot, kinematic mode at 0.8 s: the
+    chin picked (a point target, its handle 3 mm below) and the constraint panel, not solved (RGB (H, W, 3))."""
+    from kdfaces.rig.groups import vertex_group
+
+    viewer.set_mode("kinematic")
+    viewer.set_frame(20)
+    jaw = vertex_group(viewer.shot.rig, "jaw")
+    x = viewer.points
+    front = jaw[x[jaw, 2] > np.percentile(x[jaw, 2], 90)]
+    viewer.pick_vertex(int(front[np.argmin(x[front, 1])]))
+    viewer.set_offset_mm(None, 0.0, -3.0, 0.0)
+    viewer._text.SetText(2, "")  # the status line shows wall-clock ms per KD state: not part of the reference
     viewer.plotter.render()
     return np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
 
 
 def authoring_references() -> dict[str, np.ndarray]:
     """name → RGB image (H, W, 3) uint8 of each authoring-viewer reference."""
+    import shutil
+    import tempfile
+
+    from kdfaces.shots.authoring import AuthoringSession
+    from kdfaces.viz.viewer import ShotViewer
     from kdfem.viewer import HatViewer
 
     images = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        shutil.copy(REFERENCE_SHOT, Path(tmp) / "shot.toml")
+        session = AuthoringSession(Path(tmp) / "shot.toml")
+        viewer = ShotViewer(session.shot, off_screen=True, size=(640, 480), widgets=False, session=session)
+        try:
+            images["authoring_panel"] = authoring_panel_image(viewer)
+        finally:
+            viewer.close()
     hat = HatViewer(off_screen=True, size=(320, 240))
     try:
         images["hat_tip_target"] = hat_target_image(hat)

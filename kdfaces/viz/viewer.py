@@ -241,6 +241,8 @@ class ShotViewer(PlotterWindow):
         if isinstance(w, str):
             raise KDInputError(f"window: expected seconds, 'auto' or 'adaptive', got {w!r}")
         self.window_s = float(max(float(w), self.step_s))
+        if session is not None:
+            self.window_s = float(session.window_s)  # the window the session solves with
         self.mode = "kd"
         self.frame = 0
         self.playing = False
@@ -267,7 +269,10 @@ class ShotViewer(PlotterWindow):
         """The shot's constraints (with a session: its enabled rows' constraints); once the width slider moved, all
         with the viewer's correction width σ."""
         if self.session is not None:
-            return list(self.session.constraints())
+            try:
+                return list(self.session.constraints())
+            except KDInputError:  # a row that does not build says so in its status
+                return []
         if not self._width_set:
             return list(self._constraints)
         return [with_width(c, self.width_s) for c in self._constraints]
@@ -358,6 +363,10 @@ class ShotViewer(PlotterWindow):
         v = float(value)
         if not v > 0:
             raise KDInputError(f"correction width: expected positive seconds, got {value}")
+        if self.session is not None:  # the selected row's bell (every row at its time shares it)
+            if self.selected is not None and abs(self.session.rows[self.selected].width_s - v) > 1e-12:
+                self.set_field("width_s", v)
+            return
         self.width_s = v
         self._width_set = True
         self._parameters_changed(rebuild=False)
@@ -365,9 +374,26 @@ class ShotViewer(PlotterWindow):
     def _parameters_changed(self, *, rebuild: bool) -> None:
         if rebuild:
             self._rebuild_system()
+        if self.session is not None and (rebuild or self.session.window_s != self.window_s):
+            self._session_dynamics()
         if self.ikd is not None:
             self.ikd_stale = True
         self.update()
+
+    def _session_dynamics(self) -> None:
+        """The session solves with the viewer's dynamics and window: a system of its own (a solve runs beside the
+        display's states) on the same model."""
+        from ..dynamics import FaceSystem
+
+        if self.session.busy:
+            self.message = "dynamics changed during a solve: solve again once it ends"
+            return
+        old = self.session.system
+        self.session.set_system(FaceSystem(self.system.model, device=self.device, threads=self.threads),
+                                window_s=self.window_s)
+        if old is not self.system and hasattr(old, "close"):
+            old.close()
+        self.message = str(self.session.status)
 
     def set_mode(self, mode: str) -> None:
         """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
@@ -427,6 +453,7 @@ class ShotViewer(PlotterWindow):
         self._handle_actor = pl.add_mesh(self._handle_sphere, color=_HANDLE_COLOR, reset_camera=False)
         self._handle_actor.SetVisibility(False)
         self._handle_widget = None
+        self._measured_actor = None
         self._off_screen = off_screen
         self._panel = pl.add_text("", position=(0.01, 0.2), viewport=True, font_size=8, color="black",
                                   font="courier")
@@ -545,7 +572,6 @@ class ShotViewer(PlotterWindow):
         """Call the session's edit ``name``; its message (a bad edit's, which changed nothing) goes to the status
         line, never a traceback. ``select``: the row to select after a successful edit ("new": the last row)."""
         s = self._session()
-        n0 = len(s.rows)
         try:
             out = getattr(s, name)(*args, **kwargs)
         except KDInputError as e:  # the session records its own messages; an error raised anyway is shown too
@@ -554,19 +580,30 @@ class ShotViewer(PlotterWindow):
             return None
         self.message = _session_message(s, out)
         rows = len(s.rows)
-        if select == "new" and rows > n0:
-            self.selected = rows - 1
+        if select == "new" and out and getattr(out, "row", None) is not None:
+            self.selected = int(out.row)
         elif self.selected is not None and self.selected >= rows:
             self.selected = rows - 1 if rows else None
-        if self.ikd is not None and not _failed(out):
-            self.ikd_stale = True
+        self._sync_result()
         self.update()
         return out
 
-    def pick(self, screen_xy) -> int | None:
-        """Pick the face vertex under the display position ``screen_xy`` (x, y) [px, VTK's origin bottom left, as
-        the interactor reports the mouse] and add a point target there (:meth:`pick_vertex`). Returns the vertex
-        id, or None (and a message) when the face is not under it."""
+    def _sync_result(self) -> None:
+        """Show the session's solution when it is the current rows' (an undo back to a solved set brings its
+        solution back); else keep showing the last one, marked stale."""
+        r = getattr(self.session, "result", None)
+        if r is not None and not self.session.stale:
+            if r is not self.ikd:
+                self.ikd = r
+                self.ikd_message = f"IKD: {r.reason}, {r.iterations} sweeps, {r.wall_s:.2f} s, {_error_text(r)}"
+            self.ikd_stale = False
+        elif self.ikd is not None:
+            self.ikd_stale = True
+
+    def vertex_at(self, screen_xy) -> int | None:
+        """The face vertex under the display position ``screen_xy`` (x, y) [px, VTK's origin bottom left, as the
+        interactor reports the mouse]: the nearest corner of the visible triangle hit there (VTK cell picking, so
+        hidden vertices are never picked), or None when the face is not under it."""
         import vtk
 
         x, y = (float(v) for v in screen_xy)
@@ -578,12 +615,29 @@ class ShotViewer(PlotterWindow):
         picker.Pick(x, y, 0.0, self.plotter.renderer)
         cell = picker.GetCellId()
         if cell < 0:
-            self.message = f"pick: no face vertex under ({x:.0f}, {y:.0f}) px"
-            self.update_text()
             return None
         tri = np.asarray(self.shot.rig.faces[cell], dtype=np.int64)
         hit = np.asarray(picker.GetPickPosition(), dtype=np.float64)
-        v = int(tri[np.argmin(np.linalg.norm(self.points[tri] - hit, axis=1))])
+        return int(tri[np.argmin(np.linalg.norm(self.points[tri] - hit, axis=1))])
+
+    def screen_position(self, vertex_id: int) -> tuple[float, float]:
+        """The display position (x, y) [px, origin bottom left] of a vertex's displayed position (the inverse of
+        :meth:`vertex_at` for a visible vertex)."""
+        r = self.plotter.renderer
+        r.SetWorldPoint(*self.points[int(vertex_id)], 1.0)
+        r.WorldToDisplay()
+        x, y, _ = r.GetDisplayPoint()
+        return float(x), float(y)
+
+    def pick(self, screen_xy) -> int | None:
+        """Key ``p``: add a point target on the face vertex under ``screen_xy`` (:meth:`vertex_at`,
+        :meth:`pick_vertex`). Returns the vertex id, or None (and a message) when the face is not under it."""
+        v = self.vertex_at(screen_xy)
+        if v is None:
+            x, y = (float(c) for c in screen_xy)
+            self.message = f"pick: no face vertex under ({x:.0f}, {y:.0f}) px"
+            self.update_text()
+            return None
         self.pick_vertex(v)
         return v
 
@@ -628,8 +682,7 @@ class ShotViewer(PlotterWindow):
     def set_offset_mm(self, row, dx_mm: float, dy_mm: float, dz_mm: float):
         """Typed offset: ``row``'s target (None: the selected row) at its kinematic position plus (dx, dy, dz)
         [mm]."""
-        d = 1e-3 * np.array([dx_mm, dy_mm, dz_mm], dtype=np.float64)
-        return self._edit("set_field", self._row(row), "target", {"offset_m": [float(v) for v in d]})
+        return self._edit("set_offset_mm", self._row(row), (dx_mm, dy_mm, dz_mm))
 
     def set_field(self, name: str, value, row: int | None = None):
         """Edit field ``name`` (time_s, width_s, curve, falloff_m, enabled, label, target) of ``row`` (default the
@@ -641,7 +694,9 @@ class ShotViewer(PlotterWindow):
         r = self._row(row)
         if r is None:
             return None
-        return self._edit("set_field", r, "enabled", not bool(_get(self.session.rows[r], "enabled", True)))
+        if not 0 <= r < len(self.session.rows):
+            return self._edit("set_enabled", r, True)  # the session refuses it with its message
+        return self._edit("set_enabled", r, not self.session.rows[r].enabled)
 
     def delete(self, row: int | None = None):
         """Key ``Delete`` / ``x``: delete ``row`` (default the selected one)."""
@@ -680,9 +735,7 @@ class ShotViewer(PlotterWindow):
 
     def _row(self, row):
         r = self.selected if row is None else int(row)
-        if r is None:
-            self.message = "no row selected (Up/Down select one)"
-        return r
+        return -1 if r is None else r  # the session refuses a missing row with its message
 
     # --- solving in a worker thread ----------------------------------------------------------------------------
     @property
@@ -739,15 +792,10 @@ class ShotViewer(PlotterWindow):
         if how == "error":
             self.message = f"solve: {out}"
         else:
-            self.message = _session_message(self.session, out)
-            result = getattr(self.session, "result", None)
-            if result is not None and not self._cancel.is_set():
-                self.ikd, self.ikd_stale = result, False
-                self.ikd_message = f"IKD: {result.reason}, {result.iterations} sweeps, {result.wall_s:.2f} s, " \
-                                   f"{_error_text(result)}"
+            self.message = str(self.session.status)
+            self._sync_result()
+            if out is not None and self.ikd is out:
                 self.mode = "ikd"
-            elif self._cancel.is_set():
-                self.message = self.message or "solve: cancelled"
         self.update()
         return True
 
@@ -757,7 +805,7 @@ class ShotViewer(PlotterWindow):
         if self.session is None:
             return ""
         rows = self.session.rows
-        head = "   time   kind          label          before   after mm  grad   on"
+        head = f"  {'time':>7s}  {'kind':12s}  {'label':14s} {'before':>7s} {'after':>7s}  grad  on  (mm, mm/s)"
         lines = [head] + [(">" if i == self.selected else " ") + " " + panel_row_text(r) for i, r in enumerate(rows)]
         return "\n".join(lines) if rows else head + "\n  (no constraints: p, h, v or o adds one)"
 
@@ -767,16 +815,24 @@ class ShotViewer(PlotterWindow):
         if self.session is None or self.selected is None or self.selected >= len(self.session.rows):
             return None
         row = self.session.rows[self.selected]
-        if _get(row, "kind") != "end_effector" or abs(float(_get(row, "time_s")) - self.time_s) > 0.5 * self.step_s:
+        if abs(row.time_s - self.time_s) > 0.5 * self.step_s:
             return None
-        p = _row_point(self.session, self.selected)
-        return None if p is None else np.asarray(p, dtype=np.float64)
+        return self.session.handle(self.selected)
 
     def _draw_handle(self) -> None:
         p = self.handle_point()
         self._handle_actor.SetVisibility(p is not None)
+        if self._measured_actor is not None:
+            self.plotter.remove_actor(self._measured_actor)
+            self._measured_actor = None
         if p is not None:
             self._handle_sphere.points = self._handle_rest + p
+            which = "ikd" if (self.mode == "ikd" and not self.ikd_stale) else "kd"
+            q = self.session.measured(self.selected, which) if self.mode != "kinematic" else None
+            if q is not None:  # where the displayed KD state has the constrained point
+                self._measured_actor = self.plotter.add_points(np.asarray(q)[None], color="#f28e2b",
+                                                               point_size=10, render_points_as_spheres=True,
+                                                               reset_camera=False)
         if self._off_screen:
             return
         if p is not None:
@@ -870,7 +926,7 @@ def _error_text(result) -> str:
 #: Named groups the ``g`` key cycles (``h`` holds, ``v`` stops the current one).
 _GROUPS = ("jaw", "lips", "mouth", "brows", "cheeks", "eyelids", "nose", "cheek_left", "cheek_right")
 _HANDLE_COLOR = "#1a9850"
-_HANDLE_RADIUS_M = 0.003
+_HANDLE_RADIUS_M = 0.004
 
 
 def _get(row, name: str, default=None):
@@ -885,40 +941,27 @@ def _mm_text(v) -> str:
 
 
 def panel_row_text(row) -> str:
-    """One row of the constraint panel: time [s], kind, label, error before/after [mm] (mm/s for velocity),
-    gradient ratio, enabled, and why it is not met (out of reach, conflicting), if so."""
+    """One row of the constraint panel (a :class:`kdfaces.shots.authoring.Row`): time [s], kind, label, error
+    before/after [mm] (mm/s for velocity), gradient ratio, enabled, and its status unless it is met (not solved,
+    out of reach, conflicting with another row at the same time, ...)."""
     grad = _get(row, "gradient_ratio")
-    why = _get(row, "why") or _get(row, "status") or ""
+    why = _get(row, "status") or ""
     on = "on " if _get(row, "enabled", True) else "off"
     label = str(_get(row, "label", "") or "")[:14]
     text = (f"{float(_get(row, 'time_s')):5.2f} s  {str(_get(row, 'kind')):12s}  {label:14s} "
             f"{_mm_text(_get(row, 'error_before_mm'))} {_mm_text(_get(row, 'error_after_mm'))}  "
             f"{'  -' if grad is None else f'{float(grad):4.2f}'}  {on}")
-    return text + (f"  {why}" if why and why not in ("ok", "met", "converged") else "")
+    return text + (f"  {why}" if why and why not in ("met", "not solved") else "")
 
 
 def _session_message(session, out) -> str:
-    """The message of the session's last call: what it returned when that is text, else its ``message``."""
-    if isinstance(out, str):
-        return out
-    return str(getattr(session, "message", "") or "")
-
-
-def _failed(out) -> bool:
-    return out is False
-
-
-def _row_point(session, row: int):
-    """The target point (3,) [m] of a point row of ``session``."""
-    c = session.constraint(row) if hasattr(session, "constraint") else None
-    if c is not None:
-        return c.target
-    return _get(session.rows[row], "point_m")
+    """The message of the session's last edit (its :class:`~kdfaces.shots.authoring.Outcome`'s, else its status)."""
+    return str(getattr(out, "message", None) or getattr(session, "status", "") or "")
 
 
 def _progress_text(args) -> str:
-    """A solve's progress callback arguments as status text."""
-    if len(args) >= 2:
-        it, err = args[0], np.asarray(args[1], dtype=np.float64)
-        return f"sweep {it}, max error {1e3 * float(err.max()):.3f} mm" if err.size else f"sweep {it}"
+    """A solve's ``progress(sweep, max_sweeps, errors)`` as status text."""
+    if len(args) >= 3:
+        it, most, err = args[0], args[1], np.asarray(args[2], dtype=np.float64)
+        return f"sweep {it}/{most}" + (f", largest error {1e3 * float(err.max()):.3f} mm" if err.size else "")
     return " ".join(str(a) for a in args)

@@ -299,8 +299,8 @@ def _stream(run: ShotRun, sinks, keep: bool, progress: bool) -> None:
         run.system.max_bake_bytes = min(run.system.max_bake_bytes, 3 * (run.chunk_frames + steps + 1) * 48 * n)
     kd_s = 0.0
     kept = {}
-    with progress_bar("KD states", f * len(kinds), progress) as bar:
-        for kind in kinds:
+    for kind in kinds:
+        with progress_bar("KD states" if kind == "kd" else "IKD states", f, progress) as bar:  # a bar per pass
             full = None
             if run.adaptive:  # the ground truth is one simulation from the shot start: it holds the take
                 traj = run.shot.trajectory if kind == "kd" else run.ikd_result.trajectory

@@ -12,8 +12,13 @@ __all__ = ["view_shot", "add_view_parser"]
 
 
 def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(960, 720), window_s=None,
-              threads: int = defaults.THREADS, max_steps: float | None = defaults.MAX_STEPS) -> dict:
+              threads: int = defaults.THREADS, max_steps: float | None = defaults.MAX_STEPS,
+              authoring: bool | None = None) -> dict:
     """Open the viewer on a shot file, or with ``screenshot`` render ``frame`` in ``mode`` off-screen to a PNG.
+
+    ``authoring`` (default: in the window, not for a screenshot) opens an
+    :class:`~kdfaces.shots.authoring.AuthoringSession` on the file: targets are picked, dragged, solved and saved
+    back into it from the viewer (keys in :mod:`kdfaces.viz.viewer`).
 
     In ``"ikd"`` mode the screenshot solves IKD first. Returns a small summary (frame, time, ms per KD state).
     ``max_steps``: the shot's work estimate is checked against it as it is loaded (see
@@ -31,7 +36,14 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         raise KDInputError(f"--frame: {frame} is outside the shot's frames 0..{n - 1}")
     if mode not in MODES:
         raise KDInputError(f"--mode: expected one of {MODES}, got {mode!r}")
-    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window_s=window_s, threads=threads)
+    session = None
+    if (screenshot is None) if authoring is None else authoring:
+        from .authoring import AuthoringSession
+
+        session = AuthoringSession(path, window_s=window_s, threads=threads)
+        shot = session.shot
+    viewer = ShotViewer(shot, off_screen=screenshot is not None, size=size, window_s=window_s, threads=threads,
+                        session=session)
     try:
         if mode == "ikd":
             viewer.solve_ikd()
@@ -39,7 +51,7 @@ def view_shot(path, *, screenshot=None, frame: int = 0, mode: str = "kd", size=(
         viewer.set_frame(int(frame))
         summary = {"shot": shot.name, "frame": viewer.frame, "time_s": float(viewer.times[viewer.frame]),
                    "mode": viewer.mode, "window_s": viewer.window_at(), "adaptive": viewer.adaptive,
-                   "kd_state_ms": viewer.last_ms}
+                   "kd_state_ms": viewer.last_ms, "authoring": session is not None}
     except BaseException:
         viewer.close()
         raise

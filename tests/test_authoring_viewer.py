@@ -241,7 +241,6 @@ def test_solve_in_worker_thread_cancel_and_stay_responsive(small):
     v.session.solve(cancel=v._cancel.is_set)
     assert "cancelled" in v.session.status and v.session.result is None
     assert v.solve_async()
-    assert not v.solve_async() or True  # a second start while one runs is refused with a message
     v.set_frame(3)  # the window stays responsive: scrubbing while the worker solves
     t0 = time.perf_counter()
     while not v.poll_solve():

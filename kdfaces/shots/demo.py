@@ -76,7 +76,7 @@ def run_demo(out, *, rig="default", threads: int = defaults.THREADS, exports=(),
 
     out = Path(out)
     shot = load_shot(DEMO_SHOT, rig=rig)
-    run = run_shot(shot, threads=threads, progress=progress, max_steps=max_steps)
+    run = run_shot(shot, threads=threads, progress=progress, max_steps=max_steps, keep_states=True)  # movie: all
     traj, system, h = shot.trajectory, run.system, run.step_s
     full = simulate_full(system, traj, run.times, step_s=h)
     windows = sorted({*DEMO_SWEEP_S, run.window_s})

@@ -141,7 +141,8 @@ def _render_command(args) -> dict:
 
     shot = load_shot(args.shot, cache_dir=user_cache_dir(), max_steps=args.max_steps)
     t0 = time.perf_counter()
-    run = run_shot(shot, window_s=args.window, progress=True, max_steps=args.max_steps)
+    run = run_shot(shot, window_s=args.window, progress=True, max_steps=args.max_steps,
+                   keep_states=True)  # the movie shows every frame
     t1 = time.perf_counter()
     unit = shot.rig.source_unit_m if args.export_unit == "rig" else 1.0
     summary = render_shot(run, args.out, frames=args.frames, movie=not args.no_movie, movie_format=args.movie_format,

@@ -359,7 +359,7 @@ class CountingTrajectory(KinematicTrajectory):
         self.evaluated = []
 
     def _evaluate_chunk(self, t, order=2, rows=None):
-        self.evaluated.append((len(t), self.rig.num_vertices if rows is None else len(rows.neutral)))
+        self.evaluated.append((len(t), self.rig.num_vertices if rows is None else rows.num_rows))
         return super()._evaluate_chunk(t, order, rows)
 
 

@@ -109,21 +109,37 @@ class SlicedTrajectory:
 
 
 class _RigRows:
-    """The rig data that evaluating vertex rows ``vertices`` (R,) needs: neutral (R, 3) [m], flat deltas
-    (K, 3R) float64 [m] and the skeleton with the rows' skin weights (R, J)."""
+    """The rig data that evaluating vertex rows ``vertices`` (R,) needs: the neutral [m], flat deltas float64 [m]
+    and the skeleton with the rows' skin weights, over the rows that something moves (``moving``, indices into the
+    R rows). The other rows (``still``: no shape moves them and no joint skins them, e.g. a body outside its face
+    region) are the neutral before root motion: the full evaluation gives them x0 + Σ w_k·0, skinned by
+    Σ_j 0·G_j ỹ + 1·y, the same values (±0 aside), so when they are at least half the rows they are copied, not
+    computed (``moving`` and ``still`` are None otherwise: every row is computed)."""
 
     def __init__(self, rig: BlendshapeRig, vertices: np.ndarray):
-        self.num_shapes = rig.num_shapes
-        self.neutral = np.ascontiguousarray(rig.neutral[vertices])
-        # the same float64 values as the rig's own flat deltas (float32 deltas widen exactly), columns of the rows
-        self.flat = np.take(rig.deltas, vertices, axis=1).reshape(rig.num_shapes, -1).astype(np.float64)
+        self.num_rows = len(vertices)
+        deltas = np.take(rig.deltas, vertices, axis=1)  # (K, R, 3) float32
         skel = rig.skeleton
+        weights = None if skel is None else skel.weights[vertices]
+        moves = (deltas != 0).any(axis=(0, 2))
+        if weights is not None:
+            moves |= (weights != 0).any(axis=1)
+        # copying still rows into place costs a scatter per order: worth it when they are most rows (a body outside
+        # its region), not for a region's margin
+        split = 2 * int(moves.sum()) <= len(moves)
+        self.moving = np.flatnonzero(moves) if split else None
+        self.still = np.flatnonzero(~moves) if split else None
+        self.still_neutral = None if self.still is None else rig.neutral[vertices[self.still]]
+        keep = slice(None) if self.moving is None else self.moving
+        self.neutral = np.ascontiguousarray(rig.neutral[vertices][keep])
+        # the same float64 values as the rig's own flat deltas (float32 deltas widen exactly), columns of the rows
+        self.flat = np.ascontiguousarray(deltas[:, keep]).reshape(rig.num_shapes, -1).astype(np.float64)
         self.skeleton = None if skel is None else dataclasses.replace(
-            skel, weights=np.ascontiguousarray(skel.weights[vertices]))
+            skel, weights=np.ascontiguousarray(weights[keep]))
 
     def blend_offsets(self, weights) -> np.ndarray:
-        """Σ w_k Δ_k of the rows for weights (T, K) → (T, R, 3), as :meth:`BlendshapeRig.blend_offsets` (shapes
-        whose weight is zero at every time skipped)."""
+        """Σ w_k Δ_k of the moving rows for weights (T, K) → (T, M, 3), as :meth:`BlendshapeRig.blend_offsets`
+        (shapes whose weight is zero at every time skipped)."""
         w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
         nz = np.flatnonzero(np.abs(w2).max(axis=0) > 0)
         if len(nz) == 0:
@@ -131,10 +147,26 @@ class _RigRows:
         return (w2[:, nz] @ self.flat[nz]).reshape(len(w2), -1, 3)
 
     def blend(self, weights) -> np.ndarray:
-        """x0 + Σ w_k Δ_k of the rows for weights (T, K) → (T, R, 3), as :meth:`BlendshapeRig.blend`."""
+        """x0 + Σ w_k Δ_k of the moving rows for weights (T, K) → (T, M, 3), as :meth:`BlendshapeRig.blend`."""
         w2 = np.atleast_2d(np.asarray(weights, dtype=np.float64))
         check_finite(w2, "weights")
         return self.blend_offsets(w2) + self.neutral
+
+    def expand(self, y, dy, ddy):
+        """The moving rows' (T, M, 3) x, ẋ, ẍ (None where not computed) → every row's (T, R, 3): still rows at the
+        neutral, at rest."""
+        if self.still is None:
+            return y, dy, ddy
+        out = []
+        for o, a in enumerate((y, dy, ddy)):
+            if a is None:
+                out.append(None)
+                continue
+            full = np.empty((len(a), self.num_rows, 3))
+            full[:, self.moving] = a
+            full[:, self.still] = self.still_neutral if o == 0 else 0.0
+            out.append(full)
+        return tuple(out)
 
 
 def _cached_evaluate(owner, times, order: int, chunk_fn, scan_fn):
@@ -500,6 +532,8 @@ class KinematicTrajectory:
         elif skel is not None and self.animation.skeleton.drives:
             G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
             y, dy, ddy = skin(skel, G, y, dy, ddy)
+        if rows is not None:
+            y, dy, ddy = rows.expand(y, dy, ddy)
         if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
             r = self.animation.skeleton.root_translation(t, 2)
             y = y + r[0][:, None]

@@ -501,24 +501,40 @@ def _solve(system, trajectory, constraints: list[Constraint], *, window_s: float
         if surface is None:
             surface = cache.surface
     kd = _KD(system, window_s, h)
-    pairs = kd.at(trajectory, constraints)
+    corrections = None if cache is None else cache.corrections
+
+    def warmed(state_shape):
+        """The correction of the slots, each slot the warm start has (same time and kind) starting there."""
+        corr, slot_of = build_correction(constraints, state_shape, correction_cache=corrections)
+        if warm is not None:
+            prior = {(round(sl.time_s, 9), sl.kind): v for sl, v in zip(warm.slots, warm.values)}
+            for a, sl in enumerate(corr.slots):
+                if (round(sl.time_s, 9), sl.kind) in prior:
+                    corr.values[a] = prior[(round(sl.time_s, 9), sl.kind)]
+            corr.update()
+        return corr, slot_of
+
+    shape0 = getattr(trajectory, "state_shape", None)
+    warm_first = warm is not None and warm.values.any() and shape0 is not None and \
+        tuple(warm.state_shape) == tuple(shape0)
+    if warm_first:  # the first KD states are the warm start's: x_K alone is never simulated
+        corr, slot_of = warmed(tuple(shape0))
+        traj_f = CorrectedTrajectory(trajectory, corr)
+        pairs = kd.at(traj_f, constraints)
+    else:
+        pairs = kd.at(trajectory, constraints)
     observed = pairs[0][0].shape
     for c in constraints:
         c.check_state(observed[0])
     lift = _Lifter(system, trajectory, observed, constraints, surface)
     if cache is not None and lift.surface is not None:
         cache.surface = lift.surface
-    corr, slot_of = build_correction(constraints, lift.state_shape,
-                                     correction_cache=None if cache is None else cache.corrections)
+    if not warm_first or lift.state_shape != tuple(shape0):
+        corr, slot_of = warmed(lift.state_shape)
+        traj_f = CorrectedTrajectory(trajectory, corr)
+        if warm is not None and warm.values.any():
+            pairs = kd.at(traj_f, constraints)
     lu_factorizations = corr.factorizations
-    traj_f = CorrectedTrajectory(trajectory, corr)
-    if warm is not None and warm.values.any():
-        prior = {(round(sl.time_s, 9), sl.kind): v for sl, v in zip(warm.slots, warm.values)}
-        for a, sl in enumerate(corr.slots):
-            if (round(sl.time_s, 9), sl.kind) in prior:
-                corr.values[a] = prior[(round(sl.time_s, 9), sl.kind)]
-        corr.update()
-        pairs = kd.at(traj_f, constraints)
     tol = np.array([tolerance_mps if c.kind == "velocity" else tolerance_m for c in constraints])
     # per slot: π/2 rad (4π rad/s for a velocity slot) on a joint-angle state, else max_correction_m [m or m/s]
     limit = np.array([(MAX_CORRECTION_RAD_PER_S if sl.kind != "position" else MAX_CORRECTION_RAD)

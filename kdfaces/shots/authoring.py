@@ -25,8 +25,8 @@ says so in its ``status`` and :meth:`AuthoringSession.solve` refuses until it is
 a constraint says why in its row (out of reach, not met within the sweeps, ...).
 
 Solving while you edit: :meth:`AuthoringSession.solve` warm-starts from the previous solution's correction, and its
-:class:`~kdfaces.ikd.solver.SolveCache` reuses every lift factorisation, interpolation LU and secant model the edit did not
-change. The solution of every constraint set solved is remembered (the last :data:`SOLUTIONS_KEPT`), so an undo
+:class:`~kdfaces.ikd.solver.SolveCache` reuses every lift factorisation, interpolation LU and secant model the edit did
+not change. The solution of every constraint set solved is remembered (the last :data:`SOLUTIONS_KEPT`), so an undo
 back to a solved state shows that solution again without solving. The first solve of a session starts from f = 0,
 exactly as ``kdfaces run`` does, so a file saved after it (or after an undo back to it) reproduces the session's
 result bit for bit through :func:`~kdfaces.shots.run_shot`.
@@ -48,6 +48,7 @@ import hashlib
 import json
 import math
 import os
+import stat
 import tomllib
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -190,6 +191,16 @@ def _plain(value):
     if isinstance(value, np.floating):
         return float(value)
     return value
+
+
+def _read_only(path: Path) -> bool:
+    """True when ``path`` may not be written: no write permission for this process, or no write bit at all in its
+    mode (a file marked read-only is respected even by a process, such as root, that could write it)."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return True
+    return not os.access(path, os.W_OK) or not (mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
 
 
 def _sha256(data: bytes) -> str:
@@ -906,10 +917,10 @@ class AuthoringSession:
         if _sha256(raw) != self._disk_hash:
             return self._refuse(f"save: {self.path} changed on disk since it was opened; reopen it (or save to "
                                 "another path)")
-        if target.exists() and (target.is_dir() or not os.access(target, os.W_OK)):
+        if target.exists() and (target.is_dir() or _read_only(target)):
             return self._refuse(f"save: {target} is {'a folder' if target.is_dir() else 'read-only'}")
-        if not os.access(target.parent if target.parent.exists() else target.parent.parent, os.W_OK):
-            return self._refuse(f"save: cannot write in {target.parent} (read-only)")
+        if not target.parent.is_dir() or _read_only(target.parent):
+            return self._refuse(f"save: cannot write in {target.parent} (missing or read-only)")
         try:
             doc = tomlkit.parse(self._text)
             self._write_rows(doc)

@@ -1,5 +1,6 @@
 """The ``kdfem`` command: ``kdfem demo`` (the floppy hat), ``kdfem window [MESH]`` (the modal window report) and
-``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem follow`` (a head that follows through) and
+``kdfem door`` (the floppy hat under the door: IKD on posture), ``kdfem braid`` (a braid flips over the shoulder:
+KD with contact), ``kdfem follow`` (a head that follows through) and
 ``kdfem view`` (the hat's scrubbing viewer)."""
 
 from __future__ import annotations
@@ -59,6 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     follow.add_argument("--out", default="kd-out/follow", help="output folder (default kd-out/follow)")
     follow.add_argument("--json", action="store_true", help="print summary.json to stdout")
     follow.set_defaults(func=_follow)
+    braid = sub.add_parser("braid", help="a braid flips over the shoulder with a head turn: KD with contact (§6.3)")
+    braid.add_argument("--out", default="kd-out/braid", help="output folder (default kd-out/braid)")
+    braid.add_argument("--frame-stride", type=int, default=1,
+                       help="evaluate every n-th frame of the shot (default 1; summary fps is the evaluated rate)")
+    braid.add_argument("--no-movie", dest="movie", action="store_false", default=True, help="skip movie.mp4")
+    braid.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    braid.set_defaults(func=_braid)
     from .viewer import add_view_parser
 
     add_view_parser(sub)
@@ -69,6 +77,12 @@ def _follow(args) -> dict:
     from .scenes.follow import run_follow
 
     return run_follow(args.out)
+
+
+def _braid(args) -> dict:
+    from .scenes.braid import run_braid
+
+    return run_braid(args.out, frame_stride=args.frame_stride, movie=args.movie, progress=not args.json)
 
 
 def _door(args) -> dict:

@@ -17,7 +17,8 @@ __all__ = [
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
     "TET_EDGE_LENGTH_FAC", "TET_ENVELOPE_FAC", "TET_COARSEN", "YOUNGS_PA", "POISSON_RATIO", "DENSITY_KG_M3",
-    "MATERIAL_MODEL", "NEWTON_TOL_M", "CONTACT_DHAT_FAC", "ATTACH_DISTANCE_M", "OMEGA_MAX_RADPS", "V_MAX_MPS",
+    "MATERIAL_MODEL", "NEWTON_TOL_M", "CONTACT_DHAT_FAC", "CONTACT_GRID_NODES", "CONTACT_FRICTION_EPS_V_MPS",
+    "ATTACH_DISTANCE_M", "OMEGA_MAX_RADPS", "V_MAX_MPS",
     "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
     "WINDOW_MODES", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
     "max_steps_argument",
@@ -121,6 +122,10 @@ MATERIAL_MODEL = "neohookean"
 NEWTON_TOL_M = 1e-6
 #: Contact barrier activation distance d̂ / the object's rest bounding-box diagonal (kdfem.fem.contact).
 CONTACT_DHAT_FAC = 1e-3
+#: Nodes of a collider's broad-phase distance grid (over its bounding box; kdfem.fem.contact.DistanceGrid).
+CONTACT_GRID_NODES = 2 ** 18
+#: Friction mollifier ε_v [m/s]: tangential speeds below it are static friction (IPC §5; ipctk FrictionPotential).
+CONTACT_FRICTION_EPS_V_MPS = 1e-3
 #: FEM nodes within this distance [m] of the head surface follow the head joint.
 ATTACH_DISTANCE_M = 0.02
 #: The worst-case jump of the bone's angular [rad/s] and linear [m/s] speed the modal window is sized for (eq. 30).

@@ -133,3 +133,102 @@ def test_bad_input_errors():
         ContactModel(faces[(faces < 8).all(axis=1)], [_plane()], dhat_m=1e-12).bind(model)
     with pytest.raises(KDInputError, match="dhat_m"):
         ContactModel(faces, [_plane()], dhat_m=-1.0)
+
+
+def _tilted(mu, tan_theta, kappa_fac=10.0):
+    """The block resting on the floor under gravity tilted by θ (a floor tilted by θ): starts still at the barrier
+    rest height for the normal load m g cos θ, no Rayleigh damping (α would drag it)."""
+    theta = np.arctan(tan_theta)
+    g = 9.81 * np.array([np.sin(theta), -np.cos(theta), 0.0])
+    mesh = _block(height_m=0.0)
+    model0 = FEMModel(mesh, Material(youngs_pa=1e6, density_kg_m3=500.0), np.arange(8, 12), rayleigh_alpha=0.0,
+                      rayleigh_beta=0.0, gravity=tuple(g))
+    faces = mesh.boundary_faces()
+    faces = faces[(faces < 8).all(axis=1)]
+    kappa = kappa_fac * ContactModel(faces, [_plane()]).bind(model0).kappa_min
+    cm = ContactModel(faces, [_plane()], kappa=kappa, friction=mu).bind(model0)
+    h, dh = 0.01, cm.dhat_m
+    m = model0.masses[:8].sum()
+    force = lambda d: kappa / h ** 2 * 4 * 2 * d * abs(  # noqa: E731
+        -2 * (d * d - dh * dh) * np.log(d * d / dh / dh) - (d * d - dh * dh) ** 2 / (d * d))
+    d_star = brentq(lambda d: force(d) - m * 9.81 * np.cos(theta), 1e-6 * dh, dh * (1 - 1e-12))
+    x0 = mesh.nodes.copy()
+    x0[:8, 1] += d_star
+    return model0, cm, x0, h, theta
+
+
+@pytest.mark.parametrize("tan_theta", [0.3, 0.8])
+def test_friction_block_on_a_tilted_plane_sticks_below_mu_and_slides_above(tan_theta):
+    """Coulomb friction μ = 0.5 through ipctk's lagged friction potential (normal forces and tangent bases from the
+    step start): below tan θ = μ the block stays put (tangential speed within the mollifier's ε_v); above, it slides
+    with a = g (sin θ − μ cos θ) (λ = m g cos θ at the barrier rest height; tolerance: the lag and the implicit
+    step)."""
+    mu = 0.5
+    model, cm, x0, h, theta = _tilted(mu, tan_theta)
+    stepper = ImplicitEuler(model, h, tol_m=1e-10, contact=cm)
+    state = FEMState(x=x0[None].copy(), v=np.zeros((1, *x0.shape)))
+    C = _plane().rest_vertices[None]
+    obstacles = (C, C, [None], [None])
+    vx = []
+    for _ in range(40):
+        stepper.step(state, np.eye(4)[None], np.zeros((1, 4, 4)), obstacles=obstacles)
+        assert not cm.intersects(state.x[0, cm.nodes], C[0])
+        vx.append(state.v[0, :8, 0].mean())
+    vx = np.array(vx)
+    if np.tan(theta) < mu:
+        assert np.abs(vx).max() < 2 * cm.friction_eps_v_mps
+    else:
+        a = np.polyfit(h * np.arange(20, 40), vx[20:], 1)[0]
+        expected = 9.81 * (np.sin(theta) - mu * np.cos(theta))
+        assert a == pytest.approx(expected, rel=0.05)
+        # frictionless, it would accelerate at g sin θ: friction is acting
+        assert a < 0.7 * 9.81 * np.sin(theta)
+
+
+def test_demo_hat_never_enters_the_head():
+    """The demo scene (the default hat on the default head, the demo's nod) with the head as a collider
+    (:func:`attached_object_collider`: the head minus where the hat rests on it): a full simulation of 0.3 s around
+    the nod's swing, and the same with a floor pressed onto the brim (contact active), never intersect the head
+    or the floor (ipctk on the whole collider, every step) and keep a positive distance; without contact the
+    steps are the contact-free ones, bit for bit."""
+    from kdfaces.io.rigfiles import load_default_rig
+    from kdfaces.motion.trajectory import KinematicTrajectory
+    from kdfaces.shots.builtin import demo_animation
+    from kdfem.fem.contact import attached_object_collider
+    from kdfem.fem.default_hat import default_hat_system
+    from kdfem.fem.system import HatSystem
+
+    rig = load_default_rig()
+    traj = KinematicTrajectory(rig, demo_animation())
+    base, _, _ = default_hat_system(rig, threads=1)
+    head = attached_object_collider(base.model, base.rest_equilibrium, rig)
+    t0, h, steps = 4.8, 0.01, 30
+    x_k = base.observe_kinematic(traj, np.array([t0]))[0]
+    cm0 = ContactModel(base.model.mesh.boundary_faces(), [head]).bind(base.model)
+    y = float(x_k[cm0.nodes, 1].min()) - 2e-3
+    c = x_k[cm0.nodes].mean(axis=0)
+    floor = FixedCollider(np.array([[c[0] - 0.5, y, c[2] - 0.5], [c[0] + 0.5, y, c[2] - 0.5],
+                                    [c[0] + 0.5, y, c[2] + 0.5], [c[0] - 0.5, y, c[2] + 0.5]]),
+                          np.array([[0, 3, 1], [1, 3, 2]]), name="floor")
+    ref = None
+    for colliders in ([head], [head, floor]):
+        system = HatSystem(base.model, embedding=base.embedding, threads=1, colliders=colliders)
+        cm = system.contact
+        state = system.initial_state(traj, np.array([t0]))
+        if len(colliders) == 1:
+            ref = base.initial_state(traj, np.array([t0]))
+        for k in range(steps):
+            t = np.array([t0 + k * h])
+            system.step(state, traj, t, h)
+            C, _ = cm.collider_pose(t + h, traj)
+            xo = state.x[0, cm.nodes]
+            assert not cm.intersects(xo, C[0]), f"step {k}: the hat intersects {[c.name for c in colliders]}"
+            assert cm.min_distance(xo, C[0]) > 0
+            if len(colliders) == 1:
+                base.step(ref, traj, t, h)
+        steps_on_contact = system.stepper(h).contact_steps
+        if len(colliders) == 1:  # the broad phase clears every step: the contact-free result, bit for bit
+            assert steps_on_contact == 0
+            assert np.array_equal(state.x, ref.x)
+        if len(colliders) == 2:
+            assert steps_on_contact > 0  # the floor did press on the brim

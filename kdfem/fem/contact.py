@@ -31,10 +31,15 @@ h²), the position-form IPC term κ̃·B(x) enters as (κ̃/h²)·B(x_n + h v): 
 per collision by ipctk), line-search steps bounded by ipctk's collision-free step size (CCD). See
 :class:`~kdfem.fem.integrator.ImplicitEuler` for the solve.
 
-**Broad phase.** Frames far from every collider must cost almost nothing: :meth:`ContactModel.clearance` is a lower
-bound on the object–collider distance from a k-d tree of collider triangle centroids (in a rigid collider's own
-frame: built once) minus each triangle's radius; a step whose whole linear path stays farther than d̂ from every
-collider never calls ipctk (the barrier is exactly zero there, so the result is the contact-free step, bit for bit).
+**Broad phase.** Frames far from every collider must cost almost nothing. Each collider is split into near-rigid
+pieces (:func:`piece_labels`: one for a rigid collider; a skinned one by dominant joint), each with a
+:class:`DistanceGrid` in its rest frame, built once (libigl distances, cached by content): a rigorous lower bound of
+the unsigned distance (trilinear interpolation less h·√(Σ t(1 − t)) ≤ h√3/2). :meth:`ContactModel.clearance` queries
+it at the object's surface triangles transformed into the piece's frame (a rigid collider's G; otherwise the piece's
+least-squares rigid fit, less its measured deviation δ from it), splitting triangles until the bound decides.
+:meth:`ContactModel.path_clear` clears a step whose end is farther than d̂ and whose path touches nothing (bounds in
+the docstring); such a step never calls ipctk and is the contact-free step, bit for bit. Any other step gives ipctk
+only the collider triangles that can come near the object (:meth:`ContactModel.local`).
 
 **Bad input** (:class:`~kdfaces.errors.KDInputError`, before the run): a state that starts intersecting a collider
 (ipctk ``has_intersections``; for a ``solid`` collider also an object node inside it, by the winding number), a
@@ -52,8 +57,9 @@ import numpy as np
 from kdfaces import defaults
 from kdfaces.errors import KDInputError
 
-__all__ = ["Collider", "FixedCollider", "RigidCollider", "SkinnedCollider", "ContactModel", "head_collider",
-           "attached_object_collider", "closed_surface", "DHAT_FLOAT64_FAC"]
+__all__ = ["Collider", "FixedCollider", "RigidCollider", "SkinnedCollider", "ContactModel", "LocalContact",
+           "DistanceGrid", "head_collider", "attached_object_collider", "closed_surface", "piece_labels",
+           "DHAT_FLOAT64_FAC"]
 
 #: d̂ must be at least this × the scene's bounding-box diagonal: below it, float64 coordinates (relative round-off
 #: 1.1e-16) leave too few bits for the distance the barrier acts on.
@@ -266,27 +272,125 @@ def attached_object_collider(model, rest_positions, rig, *, clearance_m: float |
 
 
 @dataclass
-class _Broad:
-    """Per collider: its triangles' centroid tree (in its rest frame for a rigid collider), radii and offset."""
+class _Piece:
+    """One near-rigid piece of a collider for the broad phase: its triangles' distance grid in the piece's rest
+    frame, the collider vertices it spans (indices into the collider's vertices) and their rest positions."""
 
-    offset: int
-    count: int
-    faces: np.ndarray
-    rigid: bool
-    tree: list | None = None
-    radius: np.ndarray | None = None
+    collider: int
+    verts: np.ndarray
+    rest: np.ndarray
+    grid: DistanceGrid
 
 
-def _subdivision(X: np.ndarray, F: np.ndarray, spacing: float):
+class DistanceGrid:
+    """A rigorous lower bound of the unsigned distance [m] to a triangle surface, from a regular grid.
+
+    ``DistanceGrid(vertices (V, 3) [m], faces (F, 3), spacing_m, pad_m)``: nodes every ``spacing_m`` over the
+    surface's bounding box grown by ``pad_m``, holding lower bounds of the distance: exact (libigl's
+    ``point_mesh_squared_distance``) wherever a coarse pass (exact distances every 4 spacings, interpolated as below)
+    cannot prove the distance exceeds ``8 × spacing_m``, that coarse bound elsewhere (a narrow band).
+
+    :meth:`lower_bound` at points q: the trilinear interpolant of the node values minus h·√(Σₐ tₐ(1 − tₐ)) (tₐ the
+    cell coordinates, h the spacing): for a 1-Lipschitz d, d(q) ≥ d(cₖ) − |q − cₖ| at each corner, and
+    Σₖ wₖ|q − cₖ| ≤ √(Σₖ wₖ|q − cₖ|²) = h√(Σₐ tₐ(1 − tₐ)) ≤ h√3/2 (Jensen; trilinear weights wₖ). A point outside the
+    grid is clamped onto it, less the clamp distance; and no bound is below the distance to the surface's own
+    bounding box.
+    """
+
+    def __init__(self, vertices, faces, spacing_m: float, pad_m: float):
+        V = np.asarray(vertices, dtype=np.float64)
+        F = np.asarray(faces, dtype=np.int64)
+        self.spacing_m = h = float(spacing_m)
+        self.box_lo, self.box_hi = V.min(axis=0), V.max(axis=0)
+        n = np.ceil((self.box_hi - self.box_lo + 2 * pad_m) / h).astype(np.int64) + 1
+        n = 4 * (-(-(n - 1) // 4)) + 1  # a multiple of 4 cells: the coarse pass's nodes are grid nodes
+        self.lo = 0.5 * (self.box_lo + self.box_hi) - 0.5 * (n - 1) * h
+        self.shape = tuple(int(k) for k in n)
+        coarse = DistanceGrid._exact(self.lo, 4 * h, (n - 1) // 4 + 1, V, F)
+        self.values = coarse  # temporarily: bound the fine nodes from the coarse grid
+        self.spacing_m, self.shape = 4 * h, coarse.shape
+        idx = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij"), axis=-1).reshape(-1, 3)
+        P = self.lo + h * idx
+        lb = self.lower_bound(P)
+        self.spacing_m, self.shape = h, tuple(int(k) for k in n)
+        vals = lb
+        near = lb < 8 * h
+        if near.any():
+            vals[near] = np.sqrt(DistanceGrid._squared(P[near], V, F))
+        self.values = np.maximum(vals, 0.0).reshape(self.shape)
+
+    @staticmethod
+    def _squared(P, V, F):
+        import igl
+
+        return np.asarray(igl.point_mesh_squared_distance(np.ascontiguousarray(P), V, F)[0], dtype=np.float64)
+
+    @staticmethod
+    def _exact(lo, h, n, V, F):
+        idx = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij"), axis=-1).reshape(-1, 3)
+        return np.sqrt(DistanceGrid._squared(lo + h * idx, V, F)).reshape(tuple(int(k) for k in n))
+
+    def lower_bound(self, q: np.ndarray) -> np.ndarray:
+        """Lower bounds (P,) [m] of the distance from points ``q`` (P, 3) [m] (in the surface's frame) to it."""
+        q = np.asarray(q, dtype=np.float64)
+        h, shape = self.spacing_m, np.array(self.shape)
+        u = (q - self.lo) / h
+        uc = np.clip(u, 0.0, shape - 1)
+        outside = h * np.linalg.norm(u - uc, axis=1)
+        i = np.minimum(np.floor(uc).astype(np.int64), shape - 2)
+        t = uc - i
+        s1, s2 = self.shape[1], self.shape[2]
+        corners = self.values.ravel()[((i[:, 0] * s1 + i[:, 1]) * s2 + i[:, 2])[:, None]
+                                      + np.array([0, s2, 1, s2 + 1])[None, :]
+                                      + np.array([0, s1 * s2])[:, None, None]]  # (2, P, 4): x-lo/hi × (y, z)
+        t0, t1, t2 = t[:, 0], t[:, 1], t[:, 2]
+        c = corners[0] * (1 - t0)[:, None] + corners[1] * t0[:, None]  # (P, 4): (y0z0, y1z0, y0z1, y1z1)
+        interp = (c[:, 0] * (1 - t1) + c[:, 1] * t1) * (1 - t2) + (c[:, 2] * (1 - t1) + c[:, 3] * t1) * t2
+        lb = interp - h * np.sqrt((t * (1 - t)).sum(axis=1)) - outside
+        box = np.linalg.norm(np.maximum(0.0, np.maximum(self.box_lo - q, q - self.box_hi)), axis=1)
+        return np.maximum(lb, box)
+
+
+def _kabsch(X: np.ndarray, Y: np.ndarray):
+    """The rigid transform (R (3, 3), p (3,)) closest to mapping points X onto Y (both (V, 3)), least squares."""
+    cx, cy = X.mean(axis=0), Y.mean(axis=0)
+    U, _, Wt = np.linalg.svd((X - cx).T @ (Y - cy))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Wt))])
+    R = (U @ D @ Wt).T
+    return R, cy - R @ cx
+
+
+def piece_labels(collider) -> np.ndarray:
+    """(F,) int labels splitting a collider's triangles into near-rigid pieces for the broad phase: the collider's
+    own ``piece_labels`` when it has them; for a :class:`SkinnedCollider` the dominant influence of each triangle's
+    first corner (0: the fixed body, j + 1: joint j); else one piece."""
+    F = np.asarray(collider.faces)
+    own = getattr(collider, "piece_labels", None)
+    if own is not None and not callable(own):
+        lab = np.asarray(own, dtype=np.int64)
+        if lab.shape != (len(F),):
+            raise KDInputError(f"collider {getattr(collider, 'name', 'collider')!r}: piece_labels: expected "
+                               f"({len(F)},) integer labels, one per triangle, got shape {lab.shape}")
+        return lab
+    W = getattr(collider, "weights", None)
+    if W is not None:
+        W = np.asarray(W, dtype=np.float64)
+        full = np.column_stack([1.0 - W.sum(axis=1), W])
+        return np.argmax(full, axis=1)[F[:, 0]]
+    return np.zeros(len(F), dtype=np.int64)
+
+
+def _subdivision(X: np.ndarray, F: np.ndarray, spacing: float, *, weights: bool = False):
     """Each triangle of ``F`` (F, 3) on ``X`` (V, 3) cut into n² similar sub-triangles, n = ⌈longest edge /
     ``spacing``⌉: the sparse map (S, V) from vertex positions to the sub-triangle centroids, each centroid's triangle
-    (S,) and n per triangle (F,) float64 (a sub-triangle's largest centroid–corner distance is its triangle's / n)."""
+    (S,) and n per triangle (F,) float64 (a sub-triangle's largest centroid–corner distance is its triangle's / n);
+    with ``weights`` also each centroid's barycentric weights on its triangle's corners (S, 3)."""
     import scipy.sparse as sp
 
     T = X[F]
     L = np.linalg.norm(T - np.roll(T, 1, axis=1), axis=2).max(axis=1)
     n = np.maximum(1, np.ceil(L / spacing)).astype(np.int64)
-    rows, cols, vals, tri = [], [], [], []
+    rows, cols, vals, tri, bw = [], [], [], [], []
     r0 = 0
     for m in np.unique(n):
         i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
@@ -300,8 +404,11 @@ def _subdivision(X: np.ndarray, F: np.ndarray, spacing: float):
         cols.append(F[ts][:, None, :].repeat(S, axis=1).ravel())
         vals.append(np.tile(w.ravel(), len(ts)))
         tri.append(np.repeat(ts, S))
+        bw.append(np.tile(w, (len(ts), 1)))
         r0 += len(ts) * S
     M = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, len(X)))
+    if weights:
+        return M, np.concatenate(tri), n.astype(np.float64), np.concatenate(bw)
     return M, np.concatenate(tri), n.astype(np.float64)
 
 
@@ -310,31 +417,86 @@ def _triangle_radii(X: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.linalg.norm(T - T.mean(axis=1)[:, None], axis=2).max(axis=1)
 
 
-def _centroid_tree(V: np.ndarray, F: np.ndarray, spacing: float | None = None):
-    """Centroid k-d trees of the triangles ``F`` of ``V``, in radius classes (each class's largest radius bounds
-    what lies beyond its k nearest centroids: a few big triangles do not loosen the bound of the many small
-    ones), and all radii (F,). Returns ([(tree, radii of the class, largest radius), ...], radii)."""
-    from scipy.spatial import cKDTree
+def _surface_bound(grid: DistanceGrid, T: np.ndarray, margin_m: float, r_stop_m: float) -> float:
+    """A lower bound [m] of the distance from the triangles ``T`` (F, 3, 3) [m] (corners, in the grid's frame) to
+    the grid's surface, exact as a bound wherever it is ≤ ``margin_m``: each triangle's centroid bound less its
+    radius; a triangle not cleared past ``margin_m`` is split in four (edge midpoints; the radius halves) until its
+    radius is ≤ ``r_stop_m``."""
+    low = np.inf
+    while len(T):
+        c = T.mean(axis=1)
+        r = np.linalg.norm(T - c[:, None], axis=2).max(axis=1)
+        lb = grid.lower_bound(c) - r
+        open_ = (lb <= margin_m) & (r > r_stop_m)
+        low = min(low, float(lb[~open_].min(initial=np.inf)))
+        if not open_.any():
+            break
+        A, B, Cc = T[open_, 0], T[open_, 1], T[open_, 2]
+        ab, bc, ca = 0.5 * (A + B), 0.5 * (B + Cc), 0.5 * (Cc + A)
+        T = np.concatenate([np.stack(q, axis=1) for q in ((A, ab, ca), (ab, B, bc), (ca, bc, Cc), (ab, bc, ca))])
+    return low
 
-    T = V[F]
-    c = T.mean(axis=1)
-    r = np.linalg.norm(T - c[:, None], axis=2).max(axis=1)
-    if spacing is not None:  # big triangles cut into similar pieces: centroids and radii of the pieces
-        M, tri, n = _subdivision(V, F, spacing)
-        c, r = M @ V, (r / n)[tri]
-    edges = np.quantile(r, [0.0, 0.9, 0.99, 1.0])
-    groups = []
-    for lo, hi, last in zip(edges[:-1], edges[1:], [False, False, True]):
-        m = (r >= lo) & ((r <= hi) if last else (r < hi))
-        if m.any():
-            groups.append((cKDTree(c[m]), r[m], float(r[m].max())))
-    return groups, r
+
+_GRID_CACHE: dict = {}
+
+
+def _cached_grid(V: np.ndarray, F: np.ndarray, spacing_m: float, pad_m: float) -> DistanceGrid:
+    """A :class:`DistanceGrid`, cached by content (a rigid collider's grid is the same for every system that uses
+    it; the last 16 are kept)."""
+    import hashlib
+
+    key = hashlib.sha1(np.ascontiguousarray(V).tobytes() + np.ascontiguousarray(F).tobytes()
+                       + np.array([spacing_m, pad_m]).tobytes()).hexdigest()
+    g = _GRID_CACHE.get(key)
+    if g is None:
+        if len(_GRID_CACHE) >= 16:
+            _GRID_CACHE.pop(next(iter(_GRID_CACHE)))
+        g = _GRID_CACHE[key] = DistanceGrid(V, F, spacing_m, pad_m)
+    return g
+
+
+class LocalContact:
+    """One step's contact problem over the collider triangles near the object (:meth:`ContactModel.local`): an
+    ipctk ``CollisionMesh`` of the object's contact surface (its n contact nodes first, as in the full mesh) and the
+    kept collider triangles. ``reach_m`` [m]: every dropped triangle is farther than this from the surface at the
+    step start over the whole collider motion, so an iterate whose nodes moved less than ``reach_m`` − d̂ from
+    there cannot feel or cross one (:meth:`covers`)."""
+
+    def __init__(self, model: ContactModel, faces: np.ndarray, reach_m: float):
+        import ipctk
+
+        n = model.num_object
+        self.model, self.reach_m = model, reach_m
+        self.collider_vertices = np.unique(faces)  # rows of the stacked collider vertices (Vc)
+        loc = np.searchsorted(self.collider_vertices, faces) + n
+        F = np.ascontiguousarray(np.vstack([model._obj_faces_local, loc]).astype(np.int32))
+        self.num_vertices = n + len(self.collider_vertices)
+        rest = np.vstack([model.mesh.rest_positions[:n],
+                          model.mesh.rest_positions[n + self.collider_vertices]])
+        self.mesh = ipctk.CollisionMesh(np.asfortranarray(rest), np.asfortranarray(ipctk.edges(F)),
+                                        np.asfortranarray(F))
+        if model.self_contact:
+            self.mesh.can_collide = ipctk.make_static_obstacle_filter(n)  # unused faces' vertices: none
+        else:
+            self.mesh.can_collide = ipctk.make_vertex_patches_filter(
+                np.concatenate([np.zeros(n, np.int32), np.ones(len(self.collider_vertices), np.int32)]))
+
+    def vertices(self, x_obj: np.ndarray, C: np.ndarray) -> np.ndarray:
+        """The local mesh's vertices (Fortran order) from contact-node positions (n, 3) and collider vertices
+        (Vc, 3) [m]."""
+        return np.asfortranarray(np.vstack([x_obj, C[self.collider_vertices]]))
+
+    def covers(self, displacement_m: float, collider_motion_m: float) -> bool:
+        """Whether an iterate whose contact nodes lie within ``displacement_m`` [m] of the step start, the colliders
+        having moved by at most ``collider_motion_m`` [m], is inside what this cut keeps."""
+        return displacement_m + collider_motion_m + self.model.dhat_m < self.reach_m
 
 
 class ContactModel:
     """Contact of an FEM object's surface with kinematic colliders (module docstring).
 
-    ``ContactModel(object_surface_faces, colliders, *, dhat_m=None, friction=0.0, kappa=None, self_contact=False)``
+    ``ContactModel(object_surface_faces, colliders, *, dhat_m=None, friction=0.0, kappa=None, self_contact=False,
+    friction_eps_v_mps=…)``
 
     Args:
         object_surface_faces: (Fo, 3) triangles into the object's nodes (N): the contact surface. Faces with an
@@ -343,6 +505,8 @@ class ContactModel:
         dhat_m: barrier activation distance d̂ [m] (default :data:`kdfaces.defaults.CONTACT_DHAT_FAC` × the
             object's rest bounding-box diagonal).
         friction: Coulomb coefficient μ [-] of ipctk's lagged friction (0: frictionless).
+        friction_eps_v_mps: the friction mollifier ε_v [m/s] (default
+            :data:`kdfaces.defaults.CONTACT_FRICTION_EPS_V_MPS`): below this tangential speed friction is static.
         kappa: fixed barrier stiffness κ̃ in ipctk's position-form convention [J/m⁴] (default adaptive).
         self_contact: also let the object's surface collide with itself.
 
@@ -352,7 +516,8 @@ class ContactModel:
     """
 
     def __init__(self, object_surface_faces, colliders, *, dhat_m: float | None = None, friction: float = 0.0,
-                 kappa: float | None = None, self_contact: bool = False):
+                 kappa: float | None = None, self_contact: bool = False,
+                 friction_eps_v_mps: float = defaults.CONTACT_FRICTION_EPS_V_MPS):
         self.object_faces = np.asarray(object_surface_faces, dtype=np.int64)
         if self.object_faces.ndim != 2 or self.object_faces.shape[1] != 3 or not len(self.object_faces):
             raise KDInputError("contact: object_surface_faces: expected (F, 3) triangles into the object's nodes")
@@ -372,6 +537,10 @@ class ContactModel:
             raise KDInputError(f"contact dhat_m: expected a positive distance in metres, got {dhat_m}")
         if not (np.isfinite(friction) and friction >= 0):
             raise KDInputError(f"contact friction: expected a Coulomb coefficient ≥ 0, got {friction}")
+        if not (np.isfinite(friction_eps_v_mps) and friction_eps_v_mps > 0):
+            raise KDInputError("contact friction_eps_v_mps: expected a positive speed in m/s, got "
+                               f"{friction_eps_v_mps}")
+        self.friction_eps_v_mps = float(friction_eps_v_mps)
         if kappa is not None and not (np.isfinite(kappa) and kappa > 0):
             raise KDInputError(f"contact kappa: expected a positive barrier stiffness, got {kappa}")
         self._dhat_arg, self.friction, self.kappa, self.self_contact = dhat_m, float(friction), kappa, self_contact
@@ -408,22 +577,14 @@ class ContactModel:
         remap = np.full(N, -1, dtype=np.int64)
         remap[self.nodes] = np.arange(n)
         self._obj_faces_local = remap[Fo]
-        # the broad phase's sample spacing: twice the colliders' median triangle radius (at least d̂)
-        self._spacing = max(2.0 * float(np.median(np.concatenate(
-            [_triangle_radii(np.asarray(c.rest_vertices, dtype=np.float64), np.asarray(c.faces, dtype=np.int64))
-             for c in self.colliders]))), self.dhat_m)
-        faces, self._broad, off = [remap[Fo]], [], n
+        faces, self._slices, off = [remap[Fo]], [], n
         for c in self.colliders:
             Fc = np.asarray(c.faces, dtype=np.int64)
-            rigid = hasattr(c, "frames")
-            b = _Broad(offset=off, count=len(c.rest_vertices), faces=Fc, rigid=rigid)
-            if rigid:
-                b.tree, b.radius = _centroid_tree(np.asarray(c.rest_vertices, dtype=np.float64), Fc, self._spacing)
-            self._broad.append(b)
+            self._slices.append((off, len(c.rest_vertices), Fc))
             faces.append(Fc + off)
             off += len(c.rest_vertices)
         self.num_object, self.num_vertices = n, off
-        self._build_sampler(X[self.nodes])
+        self._build_broad(X[self.nodes])
         F = np.ascontiguousarray(np.vstack(faces).astype(np.int32))
         E = ipctk.edges(F)
         self.mesh = ipctk.CollisionMesh(np.asfortranarray(allv), np.asfortranarray(E), np.asfortranarray(F))
@@ -442,9 +603,30 @@ class ContactModel:
         self.model = model
         return self
 
-    def _build_sampler(self, Xo: np.ndarray) -> None:
-        """The sparse map from contact-node positions to the broad phase's sample points (sub-triangle centroids)."""
-        self._sampler, self._sample_tri, self._sample_n = _subdivision(Xo, self._obj_faces_local, self._spacing)
+    def _build_broad(self, Xo: np.ndarray) -> None:
+        """The broad phase (module docstring): a distance grid per near-rigid collider piece, in its rest frame
+        (spacing from :data:`kdfaces.defaults.CONTACT_GRID_NODES` nodes over the collider's padded bounding box, at
+        least d̂), and the sparse map from contact-node positions to the surface's sample points (sub-triangles no
+        longer than the finest grid spacing)."""
+        size = np.linalg.norm(Xo.max(axis=0) - Xo.min(axis=0))
+        self._pieces, spacings = [], []
+        for k, c in enumerate(self.colliders):
+            Vc = np.asarray(c.rest_vertices, dtype=np.float64)
+            Fc = np.asarray(c.faces, dtype=np.int64)
+            pad = max(0.1 * float(size), 4 * self.dhat_m)
+            ext = Vc.max(axis=0) - Vc.min(axis=0) + 2 * pad
+            h = max(float(np.prod(ext) / defaults.CONTACT_GRID_NODES) ** (1 / 3), self.dhat_m)
+            spacings.append(h)
+            labels = piece_labels(c)
+            for lab in np.unique(labels):
+                Fp = Fc[labels == lab]
+                used = np.unique(Fp)
+                loc = np.searchsorted(used, Fp)
+                self._pieces.append(_Piece(collider=k, verts=used, rest=Vc[used],
+                                           grid=_cached_grid(Vc[used], loc, h, pad)))
+        self._spacing = min(spacings)
+        self._sampler, self._sample_tri, self._sample_n, self._sample_w = _subdivision(
+            Xo, self._obj_faces_local, self._spacing, weights=True)
 
     def surface_samples(self, x_obj: np.ndarray) -> np.ndarray:
         """The broad phase's sample points (S, 3) [m] of the contact surface at contact-node positions ``x_obj``
@@ -456,15 +638,22 @@ class ContactModel:
             raise KDInputError("contact: the model is not bound to an FEM model (ContactModel.bind(model))")
 
     # --- colliders -----------------------------------------------------------------------------------------------
-    def collider_pose(self, times, trajectory=None):
+    def collider_pose(self, times, trajectory=None, *, known=None):
         """Collider vertices (B, Vc, 3) [m] stacked over colliders at ``times`` (B,) [s], and each rigid collider's
-        transforms G (B, 4, 4) (None for a non-rigid one)."""
+        transforms G (B, 4, 4) (None for a non-rigid one). ``known``: joint name → its transforms (B, 4, 4) at
+        ``times`` under ``trajectory``, already evaluated (the KD system's head on its step grid): a
+        :class:`RigidCollider` on that joint reads them instead of evaluating the skeleton."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         C, G = [], []
         for c in self.colliders:
             if hasattr(c, "frames"):
-                g = c.frames(t, trajectory)[0]
-                C.append(np.einsum("tij,vj->tvi", g[:, :3, :3], c.rest_vertices) + g[:, None, :3, 3])
+                g = None
+                if known is not None and isinstance(c, RigidCollider):
+                    g = known.get(c.joint)
+                if g is None:
+                    g = c.frames(t, trajectory)[0]
+                X = np.asarray(c.rest_vertices, dtype=np.float64)
+                C.append(X @ np.swapaxes(g[:, :3, :3], 1, 2) + g[:, None, :3, 3])
                 G.append(g)
             else:
                 C.append(np.asarray(c.positions(t, trajectory), dtype=np.float64))
@@ -477,57 +666,111 @@ class ContactModel:
         return np.asfortranarray(np.vstack([x_obj, C]))
 
     # --- broad phase -------------------------------------------------------------------------------------------
-    def clearance(self, x_obj: np.ndarray, C: np.ndarray, G=None, *, margin_m: float = np.inf) -> np.ndarray:
+    def _piece_frames(self, C: np.ndarray, G=None):
+        """Per piece: (R (3, 3), p (3,), δ [m]): the piece's rest frame at collider vertices ``C`` (Vc, 3) [m] and
+        how far its vertices lie from that rigid image of their rest positions. A rigid collider given its transform
+        (``G``: one (4, 4) or None per collider) uses it (δ = 0: ``collider_pose`` made C from it); any other piece
+        its least-squares rigid fit to C, with δ = max |C_v − (R X_v + p)| measured (so the bound holds for any
+        deformation; it is tight where the piece moves rigidly)."""
+        out = []
+        for pc in self._pieces:
+            g = None if G is None else G[pc.collider]
+            if g is not None and hasattr(self.colliders[pc.collider], "frames"):
+                out.append((g[:3, :3], g[:3, 3], 0.0))
+                continue
+            off = self._slices[pc.collider][0] - self.num_object
+            Y = C[off + pc.verts]
+            R, p = _kabsch(pc.rest, Y)
+            out.append((R, p, float(np.linalg.norm(Y - (pc.rest @ R.T + p), axis=1).max())))
+        return out
+
+    def clearance(self, x_obj: np.ndarray, C: np.ndarray, G=None, *, margin_m: float = np.inf,
+                  frames=None) -> np.ndarray:
         """Lower bounds [m], one per collider (K,), on the distance between the object's contact surface (its
         contact nodes at ``x_obj`` (n, 3) [m]) and each collider (vertices ``C`` (Vc, 3) [m]; rigid transforms
         ``G``: one (4, 4) or None per collider).
 
-        Every object triangle is cut into n² similar sub-triangles (n = ⌈its longest edge / the sample spacing⌉, the
-        spacing twice the colliders' median triangle radius); a point of the surface lies within σ = r/n of a
-        sub-triangle centroid (r: the triangle's largest centroid–corner distance), and a point of a collider
-        triangle within r_c of its centroid, so the distance is at least min |s − c| − r_c − σ, taken over the 4
-        nearest collider centroids of each sample and the largest collider radius beyond them (a k-d tree, built
-        once in a rigid collider's rest frame). Triangles whose whole-triangle bound (centroid and r) already exceeds
-        ``margin_m`` [m] are not refined (the bound is then only guaranteed up to ``margin_m``: enough to decide
-        "farther than margin_m")."""
+        Per piece (:meth:`_piece_frames`): the piece's distance grid (:class:`DistanceGrid`) queried in its rest
+        frame, less its δ, at each object triangle's centroid less the triangle's radius r (a point of the triangle
+        lies within r of it; d is 1-Lipschitz); triangles whose bound is ≤ ``margin_m`` [m] are split in four at
+        their edge midpoints and bounded again, down to r ≤ half the grid spacing (:func:`_surface_bound`). The
+        bound is only guaranteed up to ``margin_m``: enough to decide "farther than margin_m"."""
         T = x_obj[self._obj_faces_local]
-        co = T.mean(axis=1)
-        ro = np.linalg.norm(T - co[:, None], axis=2).max(axis=1)
-        samples = None
-        out = np.empty(len(self._broad))
-        for i, b in enumerate(self._broad):
-            if b.rigid and G is not None and G[i] is not None:
-                g = G[i]
-                R, p = g[:3, :3], g[:3, 3]  # into the collider's rest frame: Rᵀ(x − p)
-                groups = b.tree
-            else:
-                s = b.offset - self.num_object
-                groups = _centroid_tree(C[s:s + b.count], b.faces, self._spacing)[0]
-                R, p = np.eye(3), np.zeros(3)
-
-            def bound(q, r, groups=groups):
-                out = np.full(len(q), np.inf)
-                for tree, radius, rmax in groups:
-                    k = len(radius) if len(radius) <= 128 else 4  # a small class: every triangle, no tail
-                    d, idx = tree.query(q, k=k)
-                    d, idx = d.reshape(len(q), k), idx.reshape(len(q), k)
-                    lb = (d - radius[idx]).min(axis=1)
-                    if k < len(radius):
-                        lb = np.minimum(lb, d[:, -1] - rmax)
-                    out = np.minimum(out, lb)
-                return out - r
-
-            lb = bound((co - p) @ R, ro)  # level 1: whole triangles
-            suspect = lb <= margin_m
-            if suspect.any():  # level 2: sub-triangle samples of the triangles level 1 could not clear
-                if samples is None:
-                    samples = self._sampler @ x_obj
-                sel = np.flatnonzero(suspect[self._sample_tri])
-                lb2 = bound((samples[sel] - p) @ R, (ro / self._sample_n)[self._sample_tri[sel]])
-                out[i] = min(float(lb[~suspect].min(initial=np.inf)), float(lb2.min()))
-            else:
-                out[i] = float(lb.min())
+        out = np.full(len(self.colliders), np.inf)
+        for pc, (R, p, delta) in zip(self._pieces, frames or self._piece_frames(C, G)):
+            low = _surface_bound(pc.grid, (T - p) @ R, margin_m + delta, 0.5 * pc.grid.spacing_m) - delta
+            out[pc.collider] = min(out[pc.collider], low)
         return out
+
+    def path_clear(self, xo_a: np.ndarray, xo_b: np.ndarray, C0: np.ndarray, C1: np.ndarray, G0=None,
+                   G1=None) -> bool:
+        """Whether a step whose contact nodes move linearly from ``xo_a`` to ``xo_b`` (n, 3) [m] while the colliders
+        move from ``C0`` to ``C1`` (Vc, 3) [m] (rigid transforms ``G0``, ``G1`` per collider, or None) provably
+        needs no contact: the end is farther than d̂ from every collider (the barrier is exactly zero there) and no
+        point of the path touches one. The path bound: for a rigid collider, in its frame, the nodes move by at
+        most m and the frame turns by ε = ‖R₁ − R₀‖₂, and along ipctk's linear paths the distance stays ≥
+        (1 − ε)(d_end − m) − εm (positions at τ differ from the frame-relative interpolation by (1 − τ)(R₀ − R₁)(q₀ −
+        X)); for any other collider, ≥ d_end − max|Δx| − max|ΔC|. With friction the start must also be farther than
+        d̂ (its lagged normal forces are zero). Object self-contact: never clear."""
+        if self.self_contact:
+            return False
+        need = self.path_need(xo_a, xo_b, C0, C1, G0, G1)
+        lb = self.clearance(xo_b, C1, G1, margin_m=float(need.max()))
+        return bool((lb > need).all()) and self.start_clear(xo_a, C0, G0)
+
+    def start_clear(self, xo_a: np.ndarray, C0: np.ndarray, G0=None) -> bool:
+        """With friction, whether the step start (contact nodes ``xo_a`` (n, 3) [m], colliders ``C0``) is farther
+        than d̂ from every collider (its lagged normal forces, hence friction, are zero); True without friction."""
+        if self.friction <= 0:
+            return True
+        return bool((self.clearance(xo_a, C0, G0, margin_m=self.dhat_m) > self.dhat_m).all())
+
+    def path_need(self, xo_a: np.ndarray, xo_b: np.ndarray, C0: np.ndarray, C1: np.ndarray, G0=None,
+                  G1=None) -> np.ndarray:
+        """(K,) [m]: how far the end of a step (:meth:`path_clear`) must provably be from each collider: the larger
+        of d̂ and the path bound's motion term (m/(1 − ε) for a rigid collider, max|Δx| + max|ΔC| otherwise)."""
+        K = len(self.colliders)
+        need = np.full(K, self.dhat_m)
+        mo = float(np.linalg.norm(xo_b - xo_a, axis=1).max())
+        for k, (off, cnt, _) in enumerate(self._slices):
+            c = self.colliders[k]
+            g0 = None if G0 is None else G0[k]
+            g1 = None if G1 is None else G1[k]
+            if g0 is not None and g1 is not None and hasattr(c, "frames"):
+                qa = (xo_a - g0[:3, 3]) @ g0[:3, :3]
+                qb = (xo_b - g1[:3, 3]) @ g1[:3, :3]
+                m = float(np.linalg.norm(qb - qa, axis=1).max())
+                eps = float(np.linalg.norm(g1[:3, :3] - g0[:3, :3]))  # Frobenius ≥ spectral: conservative
+                path = m / (1.0 - eps) if eps < 0.5 else np.inf
+            else:
+                s = off - self.num_object
+                path = mo + float(np.linalg.norm(C1[s:s + cnt] - C0[s:s + cnt], axis=1).max())
+            need[k] = max(need[k], path)
+        return need
+
+    def local(self, x_obj: np.ndarray, C0: np.ndarray, C1: np.ndarray, reach_m: float) -> LocalContact:
+        """The contact problem of one step cut down to the collider triangles that may come within ``reach_m``
+        [m] of the object's contact surface (nodes at ``x_obj`` (n, 3) [m], the step start) while the colliders move
+        from ``C0`` to ``C1`` (Vc, 3) [m]: a triangle is dropped when a lower bound of its distance to the surface
+        at C1 (its centroid's distance to the nearest surface sample, less its radius and the samples' spacing
+        radius) exceeds ``reach_m`` + its corners' largest motion |C1 − C0|. ipctk then builds over these only."""
+        from scipy.spatial import cKDTree
+
+        samples = self._sampler @ x_obj
+        T0 = x_obj[self._obj_faces_local]
+        ro = np.linalg.norm(T0 - T0.mean(axis=1)[:, None], axis=2).max(axis=1)
+        sigma = float((ro / self._sample_n).max())
+        tree = cKDTree(samples)
+        keep_faces = []
+        for off, _cnt, Fc in self._slices:
+            s = off - self.num_object
+            T = C1[s + Fc]
+            c = T.mean(axis=1)
+            r = np.linalg.norm(T - c[:, None], axis=2).max(axis=1)
+            mv = np.linalg.norm(C1[s + Fc] - C0[s + Fc], axis=2).max(axis=1)
+            d, _ = tree.query(c, k=1, distance_upper_bound=float(reach_m + r.max() + sigma + mv.max()) * 1.01)
+            keep_faces.append(Fc[d - r - sigma - mv <= reach_m] + s)
+        return LocalContact(self, np.concatenate(keep_faces), float(reach_m))
 
     # --- checks ----------------------------------------------------------------------------------------------
     def check_start(self, x: np.ndarray, C: np.ndarray, G=None, *, where: str = "object") -> None:
@@ -539,6 +782,12 @@ class ContactModel:
         for b in range(len(x)):
             xo = x[b, self.nodes]
             Gb = None if G is None else [None if g is None else g[b] for g in G]
+            for c, (off, cnt, Fc) in zip(self.colliders, self._slices):  # inside a solid one, however far
+                if getattr(c, "solid", False):
+                    Cc = C[b, off - self.num_object:off - self.num_object + cnt]
+                    if _winding_number(xo[:1], Cc, Fc)[0] > 0.5:
+                        raise KDInputError(f"{where}: the state at the window start (batch member {b}) lies inside "
+                                           f"the solid collider {c.name!r}")
             if not self.self_contact and self.clearance(xo, C[b], Gb, margin_m=self.dhat_m).min() > self.dhat_m:
                 continue
             V = self.vertices(xo, C[b])
@@ -546,12 +795,6 @@ class ContactModel:
                 raise KDInputError(f"{where}: the state at the window start (batch member {b}) intersects a "
                                    "collider; expected the object clear of every collider at rest (move it, or cut "
                                    "the collider where the object rests on it)")
-            for c, bb in zip(self.colliders, self._broad):
-                if getattr(c, "solid", False):
-                    Cc = C[b, bb.offset - self.num_object:bb.offset - self.num_object + bb.count]
-                    if _winding_number(xo[:1], Cc, bb.faces)[0] > 0.5:
-                        raise KDInputError(f"{where}: the state at the window start (batch member {b}) lies inside "
-                                           f"the solid collider {c.name!r}")
 
     def min_distance(self, x_obj: np.ndarray, C: np.ndarray) -> float:
         """ipctk's minimum distance [m] between the object's contact nodes (n, 3) and the colliders (Vc, 3) (over

@@ -200,8 +200,9 @@ class ImplicitEuler:
     and attribute) still work for one release, with a :class:`DeprecationWarning`.
 
     ``contact``: a bound :class:`~kdfem.fem.contact.ContactModel`; :meth:`step` then takes the colliders' poses
-    (``obstacles``). A member whose whole step stays farther than d̂ from every collider (the broad phase's lower
-    bound, checked on the first guess and again on the result) is stepped exactly as without contact. Any other
+    (``obstacles``). A member whose whole step stays farther than d̂ from every collider (the broad phase's distance-grid
+    bound, :meth:`~kdfem.fem.contact.ContactModel.path_clear`, checked on the first guess and again on the result,
+    reusing the guess's bound less the nodes' move) is stepped exactly as without contact. Any other
     member is stepped alone with the barrier (velocity form of IPC, Li et al. 2020 eq. 6):
     E_c(v) = E(v) + (κ̃/h²)·B(x_n + h v), gradient r + (κ̃/h)∇B, Newton matrix P + κ̃∇²B⁺ (ipctk's per-collision
     PSD projection). The shared factorization is kept: the Newton system (P + U Uᵀ)Δv = −r, U Uᵀ the eigen-split of
@@ -237,6 +238,7 @@ class ImplicitEuler:
         self.iterations: list[int] = []  # iterations of the slowest member, per step
         self.refactors = 0
         self.evaluations = 0  # evaluations of E and r
+        self.contact_steps = 0  # member-steps taken on the contact path (ipctk)
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="kdfem-step") if self.threads > 1 else None
         self._workspaces: dict[tuple[int, int], _Workspace] = {}
         self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
@@ -389,7 +391,8 @@ class ImplicitEuler:
         near = np.zeros(B, dtype=bool)
         if contact is not None:
             guess = state.x + h * v1
-            near = ~self._clear(state.x, guess, obstacles, members)
+            ok, lb_guess = self._clear(state.x, guess, obstacles, members)
+            near = ~ok
             members = np.flatnonzero(~near)
             v_guess = v1.copy()
         its = [0]
@@ -403,11 +406,13 @@ class ImplicitEuler:
                                                                   where, slot=k), range(len(chunks))))
         if contact is not None:
             if len(members):  # the result's whole step must stay clear too, else redo the member with contact
-                late = members[~self._clear(state.x[members], state.x[members] + h * v1[members], obstacles,
-                                            members)]
+                ok, _ = self._clear(state.x[members], state.x[members] + h * v1[members], obstacles, members,
+                                    bound=(lb_guess[members], guess[members]))
+                late = members[~ok]
                 v1[late] = v_guess[late]
                 near[late] = True
             for b in np.flatnonzero(near):
+                self.contact_steps += 1
                 its.append(self._iterate_contact(self.lus[0], state, int(b), v1, Rn, Aw, cw, R, obstacles, where))
         self.iterations.append(max(its))
         state.x += h * v1
@@ -418,47 +423,40 @@ class ImplicitEuler:
 
 
     # --- contact (kdfem.fem.contact) ----------------------------------------------------------------------------
-    def _clear(self, xa: np.ndarray, xb: np.ndarray, obstacles, members: np.ndarray) -> np.ndarray:
-        """(k,) bool: whether the path of members ``members`` from node positions ``xa`` to ``xb`` (k, N, 3) [m] with
-        the colliders moving from C0 to C1 stays farther than d̂ from every collider: the broad phase's lower bound
-        at the end, less the motion (in a rigid collider's own frame: the object's displacement relative to it;
-        else the object's plus the collider's largest displacement)."""
+    def _clear(self, xa: np.ndarray, xb: np.ndarray, obstacles, members: np.ndarray, bound=None):
+        """(k,) bool: whether the step of members ``members`` from node positions ``xa`` to ``xb`` (k, N, 3) [m],
+        the colliders moving from C0 to C1, provably needs no contact
+        (:meth:`~kdfem.fem.contact.ContactModel.path_clear`: the end farther than d̂ from every collider, the path
+        touching none; distance grids, no ipctk), and the end's distance bounds (k, K) [m]. ``bound``: such bounds
+        (k, K) at other end positions ``bound[1]`` (k, N, 3) (the first guess): the end's bound is theirs less the
+        nodes' largest move from there (the distance is 1-Lipschitz), computed afresh only where that does not
+        clear."""
         cm = self.contact
         C0, C1, K0, K1 = obstacles
-        out = np.empty(len(members), dtype=bool)
-        if cm.self_contact:
-            out[:] = False
-            return out
         nodes = cm.nodes
+        out = np.zeros(len(members), dtype=bool)
+        lbs = np.full((len(members), len(cm.colliders)), -np.inf)
+        if cm.self_contact:
+            return out, lbs
         for j, b in enumerate(members):
+            g0 = [None if g is None else g[b] for g in K0]
+            g1 = [None if g is None else g[b] for g in K1]
             xo_a, xo_b = xa[j, nodes], xb[j, nodes]
-            lb = cm.clearance(xo_b, C1[b], [None if g is None else g[b] for g in K1], margin_m=4 * cm.dhat_m)
-            ok = True
-            for i, bb in enumerate(cm._broad):
-                if K1[i] is not None:
-                    g0, g1 = K0[i][b], K1[i][b]
-                    qa = (xo_a - g0[:3, 3]) @ g0[:3, :3]
-                    qb = (xo_b - g1[:3, 3]) @ g1[:3, :3]
-                    motion = float(np.linalg.norm(qb - qa, axis=1).max())
-                else:
-                    s = bb.offset - cm.num_object
-                    motion = float(np.linalg.norm(xo_b - xo_a, axis=1).max()) + float(
-                        np.linalg.norm(C1[b, s:s + bb.count] - C0[b, s:s + bb.count], axis=1).max())
-                ok &= lb[i] - motion > cm.dhat_m
-            out[j] = ok
-        return out
-
-    def _barrier(self, V: np.ndarray):
-        """The collision set at collision-mesh vertices ``V`` (Vcm, 3) [m] and B (unit stiffness) there."""
-        import ipctk
-
-        cm = self.contact
-        col = ipctk.NormalCollisions()
-        col.build(cm.mesh, V, cm.dhat_m)
-        return col, (float(cm.barrier(col, cm.mesh, V)) if len(col) else 0.0)
+            need = cm.path_need(xo_a, xo_b, C0[b], C1[b], g0, g1)
+            lb = None
+            if bound is not None:
+                lb = bound[0][j] - float(np.linalg.norm(xo_b - bound[1][j, nodes], axis=1).max())
+            if lb is None or not (lb > need).all():  # slack past the need: the result's check reuses it
+                lb = cm.clearance(xo_b, C1[b], g1, margin_m=float(need.max()) + 4.0 * cm.dhat_m)
+            lbs[j] = lb
+            out[j] = bool((lb > need).all()) and cm.start_clear(xo_a, C0[b], g0)
+        return out, lbs
 
     def _iterate_contact(self, lu, state, b: int, v1, Rn, Aw, cw, R, obstacles, where: str) -> int:
-        """Minimise E + (κ̃/h²)B for member ``b`` alone, in place on v1[b] (class docstring); returns iterations."""
+        """Minimise E + (κ̃/h²)B (+ h·D with friction) for member ``b`` alone, in place on v1[b] (class docstring);
+        returns iterations. ipctk works on the collider triangles near the object
+        (:meth:`~kdfem.fem.contact.ContactModel.local`); an iterate that would leave what the cut covers widens
+        it first."""
         import ipctk
 
         cm, h, fr = self.contact, self.step_s, self.model.free
@@ -466,10 +464,42 @@ class ImplicitEuler:
         C0, C1 = obstacles[0][b], obstacles[1][b]
         sl = slice(b, b + 1)
         xn, vn, Rm, Awm, cwm = state.x[sl], state.v[sl], Rn[sl], Aw[sl], cw[sl]
-        Vn = cm.vertices(xn[0, nodes], C0)
+        xo_n = xn[0, nodes]
+        cmotion = float(np.linalg.norm(C1 - C0, axis=1).max()) if len(C0) else 0.0
+
+        def disp(v):  # the contact nodes' largest displacement from the step start [m]
+            return float(np.linalg.norm(h * v[0, nodes], axis=1).max())
+
+        reach = cm.dhat_m + cmotion + 2.0 * max(disp(v1[sl]), cm.dhat_m)  # widened when an iterate leaves it
+        loc = cm.local(xo_n, C0, C1, reach)
+
+        friction = None  # lagged (IPC §5): normal forces and tangent bases at the step start, fixed over the step
+        kappa_f = None
+
+        def lag_friction():
+            nonlocal friction
+            friction = None
+            if cm.friction <= 0 or kappa_f is None:
+                return
+            Vs = loc.vertices(xo_n, C0)
+            cs = ipctk.NormalCollisions()
+            cs.build(loc.mesh, Vs, cm.dhat_m)
+            if len(cs):  # λ = (κ̃/h²)|∂B/∂d|: the physical normal force [N] of the velocity form
+                tc = ipctk.TangentialCollisions()
+                tc.build(loc.mesh, Vs, cs, ipctk.BarrierPotential(cm.dhat_m, kappa_f / h ** 2), cm.friction)
+                friction = (tc, ipctk.FrictionPotential(cm.friction_eps_v_mps),
+                            lambda v, loc=loc: loc.vertices(v[0, nodes], (C1 - C0) / h))
+
+        def widen(v):  # a cut that covers the iterate v (and the step start), from x_n
+            nonlocal loc
+            if not loc.covers(disp(v), cmotion):
+                loc = cm.local(xo_n, C0, C1, 2.0 * (disp(v) + cmotion + cm.dhat_m))
+                lag_friction()  # its collisions index the new cut's vertices
+                return True
+            return False
 
         def verts(v):
-            return cm.vertices(xn[0, nodes] + h * v[0, nodes], C1)
+            return loc.vertices(xo_n + h * v[0, nodes], C1)
 
         # a first guess reached from (x_n, C0) without crossing: the extrapolated one, else the last velocity, else
         # the free nodes at rest (CCD of the straight path, the colliders moving too)
@@ -480,7 +510,8 @@ class ImplicitEuler:
                 cand[:, fr] = vn[:, fr]
             elif k == 2:
                 cand[:, fr] = 0.0
-            if ipctk.compute_collision_free_stepsize(cm.mesh, Vn, verts(cand)) >= 1.0:
+            widen(cand)
+            if ipctk.compute_collision_free_stepsize(loc.mesh, loc.vertices(xo_n, C0), verts(cand)) >= 1.0:
                 v = cand
                 break
         if v is None:
@@ -490,30 +521,39 @@ class ImplicitEuler:
         def energy(v, kappa):
             E, r, det, scale = self._potential(xn, vn, v, Rm, Awm, cwm)
             V = verts(v)
-            col, Bv = self._barrier(V)
-            E = E[0] + kappa / h ** 2 * Bv
+            col = ipctk.NormalCollisions()
+            col.build(loc.mesh, V, cm.dhat_m)
+            E = E[0]
             r = r[0]
             gB = None
             if len(col):
-                gB = cm.barrier.gradient(col, cm.mesh, V).reshape(-1, 3)[:n]
+                E = E + kappa / h ** 2 * float(cm.barrier(col, loc.mesh, V))
+                gB = cm.barrier.gradient(col, loc.mesh, V).reshape(-1, 3)[:n]
                 r = r.copy()
                 r[fi] += kappa / h * gB
+            if friction is not None:  # h·D(v), D = Σ μλ f0(‖Tᵀ v_rel‖): velocity form of IPC's h²D
+                U = friction[2](v)
+                E = E + h * float(friction[1](friction[0], loc.mesh, U))
+                r = r.copy()
+                r[fi] += h * friction[1].gradient(friction[0], loc.mesh, U).reshape(-1, 3)[:n]
             return E, r, det[0], scale[0], col, V, gB
 
         E, r, det, scale, col, V, gB = energy(v, 1.0)
-        if self.contact.kappa is not None:
-            kappa, kappa_max = float(self.contact.kappa), float(self.contact.kappa)
+        if cm.kappa is not None:
+            kappa, kappa_max = float(cm.kappa), float(cm.kappa)
         elif len(col):  # IPC §4.3: κ̃ balancing the incremental potential's gradient (position form: h·r)
-            g_e = np.zeros((cm.num_vertices, 3))
-            g_e[:n] = h * (r - gB / h)[fi]
-            g_b = np.zeros((cm.num_vertices, 3))
+            g_e = np.zeros((loc.num_vertices, 3))
+            g_e[:n] = h * r[fi] - gB  # the incremental potential alone (r holds (1/h)·∇B at κ̃ = 1)
+            g_b = np.zeros((loc.num_vertices, 3))
             g_b[:n] = gB
             kappa, kappa_max = ipctk.initial_barrier_stiffness(cm.scene_size_m, cm.barrier.barrier, cm.dhat_m,
                                                                 cm.mean_mass_kg, g_e.ravel(), g_b.ravel())
         else:
             kappa, kappa_max = cm.kappa_min, cm.kappa_max
+        kappa_f = kappa
+        lag_friction()
         E, r, det, scale, col, V, gB = energy(v, kappa)
-        prev_d = np.sqrt(col.compute_minimum_distance(cm.mesh, V)) if len(col) else np.inf
+        prev_d = np.sqrt(col.compute_minimum_distance(loc.mesh, V)) if len(col) else np.inf
         prev = np.inf
         it = 0
         while True:
@@ -521,13 +561,20 @@ class ImplicitEuler:
             if it > self.max_iter:
                 raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
                                             f"iterations (batch member {b})")
-            d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa)
+            d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa, loc, friction, v)
             size = float(np.abs(d).max())
             if not np.isfinite(d).all():
                 raise SimulationBlowUpError(f"{where}: non-finite Newton update with contact in iteration {it}")
             vt = v.copy()
             vt[0, fr] += d
-            t = min(1.0, float(ipctk.compute_collision_free_stepsize(cm.mesh, V, verts(vt))))
+            if widen(vt):  # the Newton step leaves the cut: widen it and evaluate the current iterate on it
+                E, r, det, scale, col, V, gB = energy(v, kappa)
+                d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa, loc, friction, v)
+                size = float(np.abs(d).max())
+                vt = v.copy()
+                vt[0, fr] += d
+                widen(vt)
+            t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
             slope = float((d * r).sum())
             while True:
                 vt = v.copy()
@@ -542,8 +589,8 @@ class ImplicitEuler:
             v, E, r, col, V, gB = vt, Et, rt, colt, Vt, gBt
             if h * t * size < self.tol_m:
                 break
-            if len(col) and self.contact.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
-                dmin = float(np.sqrt(col.compute_minimum_distance(cm.mesh, V)))
+            if len(col) and cm.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
+                dmin = float(np.sqrt(col.compute_minimum_distance(loc.mesh, V)))
                 k2 = float(ipctk.update_barrier_stiffness(prev_d, dmin, kappa_max, kappa, cm.scene_size_m))
                 prev_d = dmin
                 if k2 != kappa:
@@ -554,12 +601,17 @@ class ImplicitEuler:
             prev = size
         v1[b] = v[0]
         self.last_kappa = kappa
+        self.last_local_faces = len(loc.mesh.faces) - len(cm._obj_faces_local)
         return it
 
-    def _contact_direction(self, lu, state, b: int, r: np.ndarray, Rb: np.ndarray, col, V, kappa: float):
-        """Δv = −(P + κ̃ H⁺)⁻¹ r (F, 3) for member ``b``: P's factorization and the Woodbury identity on the barrier
-        Hessian's eigen-split over the DOFs it touches (class docstring)."""
-        cm = self.contact
+    def _contact_direction(self, lu, state, b: int, r: np.ndarray, Rb: np.ndarray, col, V, kappa: float, loc,
+                           friction=None, v=None):
+        """Δv = −(P + κ̃ H⁺ + h D⁺)⁻¹ r (F, 3) for member ``b``: P's factorization and the Woodbury identity on the
+        eigen-split of the barrier's (and lagged friction's) PSD-projected Hessian over the DOFs it touches (class
+        docstring)."""
+        import ipctk
+
+        cm, h = self.contact, self.step_s
         F = r.shape[0]
 
         def pinv(Y):  # P⁻¹ Y for Y (k, F, 3)
@@ -567,13 +619,17 @@ class ImplicitEuler:
             return -self._solve(lu, state, [b] * k, Y, np.ascontiguousarray(np.broadcast_to(Rb, (k, *Rb.shape))))
 
         y0 = pinv(r[None])[0]
-        if not len(col):
-            return -y0
-        import ipctk
-
         n = cm.num_object
-        H = cm.barrier.hessian(col, cm.mesh, V, ipctk.PSDProjectionMethod.CLAMP).tocsr()[: 3 * n, : 3 * n]
-        H = (kappa * H).tocoo()
+        parts = []
+        if len(col):
+            parts.append(kappa * cm.barrier.hessian(col, loc.mesh, V, ipctk.PSDProjectionMethod.CLAMP).tocsr()[
+                : 3 * n, : 3 * n])
+        if friction is not None:
+            parts.append(h * friction[1].hessian(friction[0], loc.mesh, friction[2](v),
+                                                 ipctk.PSDProjectionMethod.CLAMP).tocsr()[: 3 * n, : 3 * n])
+        if not parts:
+            return -y0
+        H = sum(parts[1:], parts[0]).tocoo()
         dof = (3 * cm.free_index[:, None] + np.arange(3)).ravel()  # collision-mesh object DOF → free DOF
         touched = np.unique(np.concatenate([H.row, H.col]))
         if not len(touched):

@@ -124,7 +124,8 @@ class HatSystem:
                 if stop.is_set():
                     return state.x
                 steppers[slot].step(state, G[k + 1, idx], dG[k + 1, idx], where=where,
-                                    obstacles=self.obstacles(trajectory, t0[idx] + k * h, h))
+                                    obstacles=self.obstacles(trajectory, t0[idx] + k * h, h, G[k, idx],
+                                                             G[k + 1, idx]))
                 if progress is not None:
                     progress.update(len(idx))
             return state.x
@@ -211,15 +212,16 @@ class HatSystem:
             self._check_contact_start(state, trajectory, t0)
         return state
 
-    def obstacles(self, trajectory, times, step_s: float):
+    def obstacles(self, trajectory, times, step_s: float, G0=None, G1=None):
         """The colliders' poses for a step from ``times`` (B,) [s] to ``times`` + ``step_s``: (C0, C1, K0, K1),
         vertices (B, Vc, 3) [m] and rigid transforms per collider (:meth:`ContactModel.collider_pose`); None
-        without contact."""
+        without contact. ``G0``, ``G1`` (B, 4, 4): the system's joint transforms at both times when already known
+        (a collider rigid on that joint reads them)."""
         if self.contact is None:
             return None
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        C0, K0 = self.contact.collider_pose(t, trajectory)
-        C1, K1 = self.contact.collider_pose(t + step_s, trajectory)
+        C0, K0 = self.contact.collider_pose(t, trajectory, known=None if G0 is None else {self.joint: G0})
+        C1, K1 = self.contact.collider_pose(t + step_s, trajectory, known=None if G1 is None else {self.joint: G1})
         return C0, C1, K0, K1
 
     def _check_contact_start(self, state: FEMState, trajectory, times) -> None:
@@ -234,9 +236,12 @@ class HatSystem:
         if (hd is not None and k < len(hd[0]) and hd[2] is trajectory and abs(hd[4] - step_s) <= 1e-12 * step_s
                 and np.abs(t - (hd[3] + (k - 1) * hd[4])).max() <= 1e-9 * max(1.0, float(np.abs(t).max()))):
             G1, dG1 = hd[0][k], hd[1][k]
+            G0 = hd[0][k - 1]
         else:  # not prepared, or a different step: evaluate the head at t + h
             G1, dG1, _ = head_motion(trajectory, joint=self.joint).transforms(t + step_s)
-        self.stepper(step_s).step(state, G1, dG1, obstacles=self.obstacles(trajectory, t, step_s))
+            G0 = None
+        self.stepper(step_s).step(state, G1, dG1, obstacles=self.obstacles(trajectory, t, step_s, G0,
+                                                                           None if G0 is None else G1))
 
     def observe(self, state: FEMState) -> np.ndarray:
         """Node positions of every member (B, N, 3) [m]."""

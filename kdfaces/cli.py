@@ -343,11 +343,18 @@ def build_parser() -> argparse.ArgumentParser:
                        help="On the Beat's parent-torque coupling: paper (eq. 8-9 as printed, default) or exact "
                             "(the joint-space inertia's in-board entries); the timing reports both")
     punch.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    from .viz.punch_viewer import add_view_options
+
+    add_view_options(punch)
     punch.set_defaults(func=_punch)
     return ap
 
 
 def _punch(args) -> dict:
+    if args.view or args.screenshot is not None:
+        from .viz.punch_viewer import punch_view_command
+
+        return punch_view_command(args)
     from .articulated.punch import run_punch
 
     return run_punch(args.out, movie=args.movie, coupling=args.coupling)
@@ -372,7 +379,8 @@ def finish(status: int, argv) -> int:
 def main(argv=None) -> int:
     """``kdfaces …``: parse ``argv`` and run the command (see :func:`execute`); returns the exit status."""
     return finish(command("kdfaces", build_parser, argv,
-                          renders=lambda args: args.command in ("demo", "run", "render", "view")), argv)
+                          renders=lambda args: args.command in ("demo", "run", "render", "view")
+                          or getattr(args, "view", False) is True), argv)
 
 
 if __name__ == "__main__":

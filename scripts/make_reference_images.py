@@ -8,8 +8,9 @@ PNGs, and commit them:
 Every reference of ``render_references`` is kinematic (rig + renderer only), so tuning the dynamics never
 invalidates them; it is also what tests/test_render.py calls to compare a fresh render with the stored one.
 ``authoring_references`` (part of them) are the authoring viewers' (issue 26: target handles, the constraint
-panel), also compared by tests/test_authoring_viewer.py; the hat's is at frame 0, its state at rest, and the face's
-is kinematic, so they do not depend on the dynamics either.
+panel, the punch's fist target), also compared by tests/test_authoring_viewer.py and tests/test_punch_viewer.py; the
+hat's is at frame 0, its state at rest, and the face's and the punch's are kinematic, so they do not depend on the
+dynamics either.
 """
 
 from __future__ import annotations
@@ -83,6 +84,18 @@ def authoring_panel_image(viewer) -> np.ndarray:
     return np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
 
 
+def punch_target_image(viewer) -> np.ndarray:
+    """``kdfaces punch --view`` (a :class:`kdfaces.viz.punch_viewer.PunchViewer`) in kinematic mode at t_i with the fist
+    target 5 cm above the punch's, not solved: the RGB screenshot (H, W, 3) uint8 (kinematic: no dynamics in it)."""
+    viewer.reset_fist_target()
+    viewer.set_mode("kinematic")
+    viewer.set_frame(viewer.ti_frame)
+    viewer.offset_fist_target_mm(0.0, 50.0, 0.0)
+    viewer._text.SetText(2, "")  # the status line shows wall-clock ms per KD state: not part of the reference
+    viewer.plotter.render()
+    return np.asarray(viewer.plotter.screenshot(return_img=True))[..., :3].copy()
+
+
 def authoring_references() -> dict[str, np.ndarray]:
     """name → RGB image (H, W, 3) uint8 of each authoring-viewer reference."""
     import shutil
@@ -106,6 +119,13 @@ def authoring_references() -> dict[str, np.ndarray]:
         images["hat_tip_target"] = hat_target_image(hat)
     finally:
         hat.close()
+    from kdfaces.viz.punch_viewer import PunchViewer
+
+    punch = PunchViewer(off_screen=True, size=(320, 240), widgets=False)
+    try:
+        images["punch_fist_target"] = punch_target_image(punch)
+    finally:
+        punch.close()
     return images
 
 

@@ -30,12 +30,20 @@ from .engines import DEFAULT_ENGINE, make_engine
 from .model import ArticulatedModel, chain_axes
 from .system import SkeletalSystem
 
-__all__ = ["PUNCH_T_I_S", "PUNCH_SETTLE_S", "CONDUCTOR_DURATIONS_S", "punch_trajectory", "conductor_keyframes",
+__all__ = ["PUNCH_T_I_S", "PUNCH_SETTLE_S", "PUNCH_WINDOW_S", "PUNCH_SUBSTEP_S", "PUNCH_WIDTH_S", "PUNCH_TOLERANCE_M",
+           "PUNCH_MAX_ITERATIONS", "CONDUCTOR_DURATIONS_S", "punch_trajectory", "conductor_keyframes",
            "timing_experiment", "run_punch"]
 
 #: The punch lands at t_i [s]; the relaxed tension t̂ [s] of the KD arm.
 PUNCH_T_I_S = 0.55
 PUNCH_SETTLE_S = 0.12
+#: The punch's KD window δ [s], engine substep [s], correction width σ [s], IKD tolerance [m] and sweeps (what
+#: ``kdfaces punch`` and its viewer, :class:`kdfaces.viz.punch_viewer.PunchViewer`, solve with).
+PUNCH_WINDOW_S = 0.3
+PUNCH_SUBSTEP_S = 0.005
+PUNCH_WIDTH_S = 0.12
+PUNCH_TOLERANCE_M = 1e-5
+PUNCH_MAX_ITERATIONS = 50
 #: Durations [s] of the conductor-like sequence (On the Beat §5.2's script: 0.3, 0.3, 0.3, 0.4, 0.545, ...).
 CONDUCTOR_DURATIONS_S = (0.3, 0.3, 0.3, 0.4, 0.545, 0.545, 0.3, 0.3, 0.4, 0.4, 0.545, 0.545)
 
@@ -219,8 +227,9 @@ def _arm_panel(ax, model, q, target, *, title=None, color="#1f5fa8", ghost=None)
         ax.set_title(title, fontsize=8)
 
 
-def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, substep_s: float = 0.005,
-              width_s: float = 0.12, update: str = "paper", movie: bool = True, coupling: str = "paper") -> dict:
+def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = PUNCH_WINDOW_S,
+              substep_s: float = PUNCH_SUBSTEP_S, width_s: float = PUNCH_WIDTH_S, update: str = "paper",
+              movie: bool = True, coupling: str = "paper") -> dict:
     """Run the punch and the timing experiment; write filmstrip_punch.png, convergence.png, timing.png,
     movie.mp4 (unless ``movie`` is False) and summary.json to ``out``. Returns the summary.
 
@@ -261,15 +270,15 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = 0.3, subst
     miss_m = float(np.linalg.norm(X_kd[np.argmin(np.abs(frames - t_i)), fist] - target))
     c = end_effector_constraint(t_i, target, [fist], GaussianBasis(t_i, width_s), num_vertices=X_kd.shape[1],
                                 label="fist on target")
-    res = solve_ikd(system, traj, [c], window_s=window_s, step_s=h, update=update, tolerance_m=1e-5,
-                    max_iterations=50)
+    res = solve_ikd(system, traj, [c], window_s=window_s, step_s=h, update=update, tolerance_m=PUNCH_TOLERANCE_M,
+                    max_iterations=PUNCH_MAX_ITERATIONS)
     hist = res.history[:, 0]
     X_ikd = simulate_kd(system, res.trajectory, frames, window_s, step_s=h)
     # velocity variant (eq. 13–14, §4.3's tap): the fist reaches the target at t_i *and* is at rest there
     cv = velocity_constraint(t_i, np.zeros(3), GaussianBasis(t_i, width_s), group=[fist], num_vertices=X_kd.shape[1],
                              label="fist at rest")
-    res_v = solve_ikd(system, traj, [c, cv], window_s=window_s, step_s=h, update=update, tolerance_m=1e-5,
-                      tolerance_mps=1e-3, max_iterations=50)
+    res_v = solve_ikd(system, traj, [c, cv], window_s=window_s, step_s=h, update=update,
+                      tolerance_m=PUNCH_TOLERANCE_M, tolerance_mps=1e-3, max_iterations=PUNCH_MAX_ITERATIONS)
     timing = timing_experiment(model, engine=engine, coupling=coupling)
     comp, loc = timing["composite"], timing["local"]
     # the composite controller with every coupling (the local one has no parent-torque compensation)

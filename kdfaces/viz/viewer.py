@@ -19,11 +19,12 @@ the shot file: :class:`kdfaces.shots.authoring.AuthoringSession`; the viewer onl
 methods): ``p`` picks the vertex under the mouse (:meth:`ShotViewer.pick`) and adds a point target there at the
 current frame, its handle on the vertex's KD position (drag it: :meth:`ShotViewer.drag_target`; or type an offset:
 :meth:`ShotViewer.set_offset_mm`); ``g`` cycles the named group, ``h`` holds it where the kinematic pose has it,
-``v`` stops it (velocity 0), ``o`` sets a pose constraint at this frame; ``i`` solves in a worker thread (warm start;
-progress in the status line, ``Escape`` cancels, the window stays responsive); ``u`` or ``ctrl+z`` undoes, ``y``
+``v`` stops it (velocity 0), ``o`` sets a pose constraint at this frame (``k``: sliders for its shape weights and head
+angles, :meth:`ShotViewer.set_pose_weight`, :meth:`ShotViewer.set_pose_head_deg`); ``i`` solves in a worker thread (warm
+start; progress in the status line, ``Escape`` cancels, the window stays responsive); ``u`` or ``ctrl+z`` undoes, ``y``
 redoes, ``s`` saves into the shot file, ``Up``/``Down`` select a row of the constraint panel (and jump to its frame),
-``n`` enables/disables it, ``Delete`` (or ``x``) deletes it. A bad edit shows the session's message in the status
-line and changes nothing.
+``n`` enables/disables it, ``Delete`` (or ``x``) deletes it. A bad edit shows the session's message in the status line
+and changes nothing.
 """
 
 from __future__ import annotations
@@ -212,6 +213,8 @@ class ShotViewer(PlotterWindow):
         self.session = session
         self.selected = None  # the selected row of the constraint panel (index into the session's rows), or None
         self.group = _GROUPS[0]  # the named group ``h``/``v`` act on (``g`` cycles)
+        self._pose_shapes = None  # the pose sliders' shapes (computed on first use)
+        self._pose_sliders = {}  # name → slider widget of the pose editor (key ``k``, in a window with widgets)
         self.message = ""  # the last authoring message (a bad edit's, a save's), shown in the status line
         self._solve_thread = None
         self._cancel = threading.Event()
@@ -504,6 +507,7 @@ class ShotViewer(PlotterWindow):
         if slider is not None:
             slider.GetRepresentation().SetValue(self.frame)
         self._draw_handle()
+        self._sync_pose_sliders()
         self._panel.SetInput(self.panel_text() or " ")
         self.update_text()
 
@@ -530,7 +534,8 @@ class ShotViewer(PlotterWindow):
         if self.session is not None:
             busy = self.solving
             lines.append(f"solving... {self._solve_progress} (Esc cancels)" if busy else
-                         f"group: {self.group}   p point  h hold  v stop  o pose  i solve  u undo  y redo  s save")
+                         f"group: {self.group}   p point  h hold  v stop  o pose  k sliders  i solve  u undo  y redo"
+                         "  s save")
             if self.message:
                 lines.append(self.message)
         return "\n".join(lines)
@@ -674,6 +679,142 @@ class ShotViewer(PlotterWindow):
         """Key ``o``: a pose constraint at this frame: shape ``weights`` (name → weight) and ``head_deg`` (3,)
         [deg] (None: the kinematic pose's)."""
         return self._edit("add_pose", self.time_s, weights=weights, head_deg=head_deg, select="new")
+
+    # --- the pose editor: sliders for shape weights and head angles at this frame (a pose constraint) ----------
+    @property
+    def pose_shapes(self) -> list[str]:
+        """The shapes the pose editor sets: the rig's shapes the shot animates (a weight that changes over its
+        frames), at most :data:`POSE_SLIDER_SHAPES`, the largest weight range (max − min over the frames) first."""
+        if self._pose_shapes is None:
+            w = self.trajectory.weights(self.times, 0)[0]  # (F, K)
+            span = w.max(axis=0) - w.min(axis=0)
+            order = [int(k) for k in np.argsort(-span, kind="stable") if span[k] > 0][:POSE_SLIDER_SHAPES]
+            self._pose_shapes = [self.shot.rig.shape_names[k] for k in order]
+        return list(self._pose_shapes)
+
+    def pose_row(self) -> int | None:
+        """The session's enabled pose constraint at the displayed frame (its row index), or None."""
+        for i, r in enumerate(self._session().rows):
+            if r.enabled and r.kind == "pose" and abs(r.time_s - self.time_s) <= 0.5 * self.step_s:
+                return i
+        return None
+
+    def pose_values(self) -> tuple[dict, np.ndarray]:
+        """What the pose sliders show at this frame: ({shape: weight} of :attr:`pose_shapes`, head (yaw, pitch,
+        roll) [deg] added to the animation's): the pose constraint's target here, else the animation's weights and
+        no head offset."""
+        rig = self.shot.rig
+        w = self.trajectory.weights([self.time_s], 0)[0][0].copy()
+        head = np.zeros(3)
+        i = self.pose_row()
+        target = self.session.rows[i].target if i is not None else None
+        if isinstance(target, dict):
+            for name, v in (target.get("weights") or {}).items():
+                w[rig.shape_indices([name])[0]] = float(v)
+            if target.get("head_deg") is not None:
+                head = np.asarray(target["head_deg"], dtype=np.float64)
+        return {n: float(w[rig.shape_indices([n])[0]]) for n in self.pose_shapes}, head
+
+    def _pose_edit(self, what: str, key: str, value):
+        """Set ``key`` of the pose target at this frame: the pose row's target updated (undoable), or a new pose
+        constraint when the frame has none."""
+        i = self.pose_row()
+        if i is None:
+            return self._edit("add_pose", self.time_s, select="new", **{key: value})
+        target = self.session.rows[i].target
+        target = dict(target) if isinstance(target, dict) else {}
+        if target.get("obj") is not None:
+            self.message = f"refused: {what}: row {i}'s pose is an OBJ file ({target['obj']}); nothing changed"
+            self.update_text()
+            return None
+        if key == "weights":
+            rig = self.shot.rig
+            k = rig.shape_indices(list(value))[0]
+            old = {n: v for n, v in (target.get("weights") or {}).items() if rig.shape_indices([n])[0] != k}
+            value = {**old, **value}
+        target[key] = value
+        self.selected = i
+        return self._edit("set_field", i, "target", target)
+
+    def set_pose_weight(self, name: str, value):
+        """Pose slider: shape ``name``'s weight at this frame is ``value`` (a pose constraint here, made or
+        updated through the session, undoable). A bad name or value gives a message and changes nothing."""
+        try:
+            self.shot.rig.shape_indices([name], where="pose slider")
+            v = float(value)
+        except (KDInputError, TypeError, ValueError) as e:
+            self.message = f"refused: set_pose_weight: {e}; nothing changed"
+            self.update_text()
+            return None
+        return self._pose_edit(f"set_pose_weight({name!r})", "weights", {str(name): v})
+
+    def set_pose_head_deg(self, yaw_deg: float, pitch_deg: float, roll_deg: float):
+        """Head sliders: the head turned by (yaw, pitch, roll) [deg] from the animation's at this frame (a pose
+        constraint here, made or updated through the session, undoable)."""
+        try:
+            head = [float(v) for v in (yaw_deg, pitch_deg, roll_deg)]
+        except (TypeError, ValueError) as e:
+            self.message = f"refused: set_pose_head_deg: {e}; nothing changed"
+            self.update_text()
+            return None
+        return self._pose_edit("set_pose_head_deg", "head_deg", head)
+
+    def toggle_pose_sliders(self) -> bool:
+        """Key ``k``: show or hide the pose sliders (one per :attr:`pose_shapes` and yaw, pitch, roll) in place of
+        the dynamics sliders; each release calls :meth:`set_pose_weight` / :meth:`set_pose_head_deg`. Only in a
+        window with widgets (off-screen, call the methods). Returns whether they are shown."""
+        self._session()
+        if self._off_screen or "frame" not in self._sliders:
+            self.message = "pose sliders: only in a window with widgets (call set_pose_weight, set_pose_head_deg)"
+            self.update_text()
+            return False
+        return self._show_pose_sliders(not any(w.GetEnabled() for w in self._pose_sliders.values()))
+
+    def _show_pose_sliders(self, on: bool) -> bool:
+        if on and not self._pose_sliders:
+            style = dict(title_height=0.015, interaction_event="end", style="modern")
+            weights, head = self.pose_values()
+            rows = [(n, (min(0.0, v), max(1.0, v)), v, "%.2f", n) for n, v in weights.items()]
+            rows += [(f"head_{a}", (-30.0, 30.0), float(head[j]), "%.0f", f"head {a} [deg]")
+                     for j, a in enumerate(("yaw", "pitch", "roll"))]
+            for i, (key, rng, val, fmt, title) in enumerate(rows):
+                y = 0.90 - 0.07 * i
+                self._pose_sliders[key] = self.plotter.add_slider_widget(
+                    self._guarded(lambda v, key=key: self._pose_slider(key, v)), rng, value=float(np.clip(val, *rng)),
+                    title=title, pointa=(0.76, y), pointb=(0.98, y), fmt=fmt, **style)
+                rep = self._pose_sliders[key].GetRepresentation()
+                rep.SetLabelHeight(0.015)  # eleven sliders in the column: smaller value labels, thinner tubes
+                rep.SetTubeWidth(0.004)
+                rep.SetSliderWidth(0.015)
+            self.raise_callback_error()
+        for w in self._pose_sliders.values():
+            w.On() if on else w.Off()
+        for key, w in self._sliders.items():
+            if key != "frame":
+                w.Off() if on else w.On()
+        self.update()
+        return on
+
+    def _pose_slider(self, key: str, value) -> None:
+        """A pose slider's release: an edit when its value differs from the pose shown (a slider calls back with
+        its own value as it is made)."""
+        weights, head = self.pose_values()
+        if key.startswith("head_"):
+            new = head.copy()
+            new[("head_yaw", "head_pitch", "head_roll").index(key)] = float(value)
+            if np.abs(new - head).max() > 1e-9:
+                self.set_pose_head_deg(*new)
+        elif abs(weights[key] - float(value)) > 1e-9:
+            self.set_pose_weight(key, value)
+
+    def _sync_pose_sliders(self) -> None:
+        """The pose sliders show the pose at the displayed frame (setting a slider's value does not call it)."""
+        if not self._pose_sliders or self.session is None:
+            return
+        weights, head = self.pose_values()
+        values = {**weights, "head_yaw": head[0], "head_pitch": head[1], "head_roll": head[2]}
+        for key, w in self._pose_sliders.items():
+            w.GetRepresentation().SetValue(float(values[key]))
 
     def drag_target(self, point_m, row: int | None = None):
         """Dragging the handle: the point target of ``row`` (default the selected one) to ``point_m`` (3,) [m]."""
@@ -869,6 +1010,7 @@ class ShotViewer(PlotterWindow):
         pl.add_key_event("Up", g(lambda: self.step_row(-1)))
         pl.add_key_event("Down", g(lambda: self.step_row(1)))
         pl.add_key_event("Escape", g(self.cancel_solve))
+        pl.add_key_event("k", g(self.toggle_pose_sliders))
 
 
 def check_screenshot_path(path, *, where: str = "--screenshot") -> Path:
@@ -923,6 +1065,8 @@ def _error_text(result) -> str:
     return ", ".join(parts)
 
 
+#: Shapes the pose editor gives sliders at most (:attr:`ShotViewer.pose_shapes`).
+POSE_SLIDER_SHAPES = 8
 #: Named groups the ``g`` key cycles (``h`` holds, ``v`` stops the current one).
 _GROUPS = ("jaw", "lips", "mouth", "brows", "cheeks", "eyelids", "nose", "cheek_left", "cheek_right")
 _HANDLE_COLOR = "#1a9850"

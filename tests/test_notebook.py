@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOK = ROOT / "examples" / "authoring_tutorial.ipynb"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
-#: The notebook's execution bound [s] per cell (it takes about 20 s in all on two cores).
+#: The notebook's execution bound [s] per cell (the whole notebook: about 25 s on two idle cores, 45 s on busy ones).
 CELL_TIMEOUT_S = 90
 #: How long the page may take to show something [s] (a cold Chromium start and the first image).
 PAGE_TIMEOUT_S = 60

@@ -142,3 +142,18 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatc
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and "No space left on device" in lines[0] and "Traceback" not in err, lines
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_failed_run_removes_the_parent_folders_it_created(tmp_path, capsys, monkeypatch):
+    """``kd-out/`` made for a default ``--out`` goes again when the run fails; a parent that holds something else
+    (or existed before) stays."""
+    monkeypatch.chdir(tmp_path)
+    assert kdfaces_main(["punch", "--screenshot", "x.png"]) == 2  # refused after the output folder was set up
+    assert "only with --view" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+    folder = OutputFolder(tmp_path / "a" / "b" / "out")
+    folder.__enter__()
+    (tmp_path / "a" / "kept.txt").write_bytes(USER_BYTES)  # something else writes beside it meanwhile
+    folder.abandon()
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "kept.txt"]
+    assert (tmp_path / "a" / "kept.txt").read_bytes() == USER_BYTES

@@ -185,12 +185,15 @@ class OutputFolder:
         self.given = Path(out)  # as the caller wrote it (what publish returns)
         self.final = Path(out)
         self.tmp: Path | None = None
+        self.created: list[Path] = []  # parent folders this run made (removed again, if empty, when abandoned)
 
     def __enter__(self) -> Path:
         out = self.given
         self.final = check_output_folder(out)
         try:
+            missing = [p for p in (self.final.parent, *self.final.parent.parents) if not p.exists()]
             self.final.parent.mkdir(parents=True, exist_ok=True)
+            self.created = missing  # deepest first
         except OSError as e:
             raise KDIOError(f"{out}: cannot create the output folder ({e.strerror})") from None
         if not os.access(self.final.parent, os.W_OK | os.X_OK) or (
@@ -226,10 +229,17 @@ class OutputFolder:
         return self.given
 
     def abandon(self) -> None:
-        """Remove the temporary folder and everything in it."""
+        """Remove the temporary folder and everything in it, and the parent folders this run created for it
+        (``kd-out/`` of a default ``--out``) while they are empty: a failed run leaves nothing behind."""
         if self.tmp is not None:
             shutil.rmtree(self.tmp, ignore_errors=True)
             self.tmp = None
+        for p in self.created:
+            try:
+                p.rmdir()  # only an empty folder; one that something else wrote into meanwhile stays
+            except OSError:
+                break
+        self.created = []
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:

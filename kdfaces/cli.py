@@ -236,7 +236,8 @@ def execute(prog: str, args, *, renders: bool = False) -> int:
         print(json.dumps(summary, indent=2))
     outputs = summary.get("outputs", []) if isinstance(summary, dict) else []
     where = summary.get("screenshot") if isinstance(summary, dict) and summary.get("screenshot") else args.out
-    line = (f"{prog} {args.command}: wrote {where}" + (f" ({len(outputs)} outputs)" if outputs else "")
+    done = f"wrote {where}" if where is not None else "done (nothing written)"  # e.g. an interactive viewer
+    line = (f"{prog} {args.command}: {done}" + (f" ({len(outputs)} outputs)" if outputs else "")
             + f" in {wall:.1f} s, peak memory {format_bytes(peak_memory_bytes())}")
     print(line, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
     return 0

@@ -59,23 +59,31 @@ class TrajectoryBake:
     on ``source``, the trajectory over ``vertices`` (default :func:`~kdfaces.motion.trajectory.restrict_trajectory`
     of the two), so a bake costs V's vertices, not N's.
 
-    Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` None): row r is the time
-    ``origin + (j_lo + r)·h``, read by every window that starts on that grid (``origin`` defaults to the shot start;
-    frame times with h = 1/fps lie on it), stride 1, and kept across simulate calls (a sweep over windows bakes
-    once). Otherwise each member has its own rows, interleaved time-major (stride B). Rows are appended on demand by
-    :meth:`ensure`.
+    Member b at step k reads row ``rows[b] + k·stride``. Shared grid (``member_times`` and ``member_grid`` None):
+    row r is the time ``origin + (j_lo + r)·h``, read by every window that starts on that grid (``origin`` defaults
+    to the shot start; frame times with h = 1/fps lie on it), stride 1, and kept across simulate calls (a sweep over
+    windows bakes once). Otherwise each member has its own rows, interleaved time-major (stride B): member b's row at
+    step k is the time ``member_times[b] + k·h``, or with ``member_grid`` (grid indices (B,), int64) the grid time
+    ``origin + (member_grid[b] + k)·h`` — the very float64 values, computed the same way, that a shared-grid bake
+    holds at those grid points, so a few windows far apart bake their own rows only and read the same x_K bits.
+    Rows are appended on demand by :meth:`ensure`.
     """
 
     def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None,
-                 origin: float | None = None, vertices: np.ndarray | None = None, source=None):
+                 member_grid: np.ndarray | None = None, origin: float | None = None,
+                 vertices: np.ndarray | None = None, source=None):
         self.trajectory, self.h, self.device = trajectory, float(h), device
         self.vertices = vertices
         self.source = restrict_trajectory(trajectory, vertices) if source is None else source
         self.origin = float(getattr(trajectory, "start", 0.0)) if origin is None else float(origin)
         self.version = getattr(trajectory, "version", None)
+        if member_times is not None and member_grid is not None:
+            raise KDInputError("bake: give member_times or member_grid, not both")
         self.member_times = member_times
+        self.member_grid = None if member_grid is None else np.asarray(member_grid, dtype=np.int64)
         self.j_lo = int(j_lo)
-        self.stride = 1 if member_times is None else len(member_times)
+        members = member_times if member_times is not None else self.member_grid
+        self.stride = 1 if members is None else len(members)
         self.num_rows = 0
         n = trajectory.num_vertices if vertices is None else len(vertices)
         self._x = np.zeros((0, n, 3), np.float32)  # host copies with spare capacity; rows [0, num_rows) are valid
@@ -116,6 +124,8 @@ class TrajectoryBake:
 
     def times(self, r: np.ndarray) -> np.ndarray:
         """The time [s] of bake rows ``r``."""
+        if self.member_grid is not None:  # the shared grid's own arithmetic: origin + (integer index)·h
+            return self.origin + (self.member_grid[r % self.stride] + r // self.stride) * self.h
         if self.member_times is None:
             return self.origin + (self.j_lo + r) * self.h
         return self.member_times[r % self.stride] + (r // self.stride) * self.h
@@ -286,6 +296,7 @@ class FaceSystem:
         self._voff_none = wp.zeros(self._num_sim + 1, dtype=wp.int32, device=d)  # no goals when α = 0
         self._partitions: dict[int, _Partition] = {}
         self._bake: TrajectoryBake | None = None  # the shared-grid bake, reused across calls
+        self._sparse: TrajectoryBake | None = None  # the last bake of sparse windows' own grid rows (member_grid)
         self._pending = None  # (trajectory, start times, (bake, rows)) from the last prepare
         self._workers = None
         if self.threads > 1 and self.device.is_cpu:
@@ -309,7 +320,8 @@ class FaceSystem:
         ``step_s`` [s].
 
         Windows on the shot's frame grid share one bake, reused by later calls with a trajectory of the same
-        content (``trajectory.version``) and step.
+        content (``trajectory.version``) and step; a new bake of a few windows far apart bakes their own rows only
+        (the same grid times, so the same x_K; see :meth:`_bake_for`).
         """
         self._check_trajectory(trajectory)
         t0 = np.atleast_1d(np.asarray(start_times, dtype=np.float64))
@@ -319,7 +331,12 @@ class FaceSystem:
 
     def _bake_for(self, trajectory, t0: np.ndarray, h: float, steps: int = 0):
         """(bake, rows): the shared bake when every start lies on one grid (reused, extended or restarted), else a
-        bake of the members' own rows."""
+        bake of the members' own rows.
+
+        A new bake of windows far apart (IKD: a few constraint windows spread over the shot, and a new f at every
+        sweep, so nothing is reused) bakes only the rows the windows read, each distinct start its own rows on the
+        grid (``member_grid``), when those U·(steps + 1) rows are at most half of the span j_lo..j_hi the shared
+        bake would fill: the same grid times, evaluated the same way, so the kernels read the same x_K."""
         origin = TrajectoryBake.grid_origin(trajectory, t0, h)
         j = TrajectoryBake.grid_index(trajectory, t0, h, origin)
         if j is None:
@@ -330,10 +347,26 @@ class FaceSystem:
         version = getattr(trajectory, "version", None)  # content, not identity: an edited correction is new content
         lo, hi = int(j.min()), int(j.max()) + steps + 1
         row_bytes = 4 * 3 * 4 * self._num_sim  # x_K, ẋ_K of the region; device and host
-        if (old is None or version is None or old.version != version or old.h != h
-                or abs(old.origin - origin) > _GRID_TOL * max(1.0, abs(origin))
+
+        def same_grid(bake):
+            return (bake is not None and version is not None and bake.version == version and bake.h == h
+                    and abs(bake.origin - origin) <= _GRID_TOL * max(1.0, abs(origin)))
+
+        if (not same_grid(old)
                 or (max(hi, old.j_lo + old.num_rows) - min(lo, old.j_lo)) * row_bytes > self.max_bake_bytes):
+            starts = np.unique(j)
+            if 2 * len(starts) * (steps + 1) <= hi - lo:  # sparse windows: their own rows on the grid
+                if not same_grid(old):
+                    self._bake = None  # stale content: freed, as a restart would
+                sparse = self._sparse
+                if not (same_grid(sparse) and np.isin(starts, sparse.member_grid).all()):
+                    sparse = self._sparse = TrajectoryBake(trajectory, h, self.device, member_grid=starts,
+                                                           origin=origin, vertices=self._region,
+                                                           source=self._view(trajectory))
+                return sparse, np.searchsorted(sparse.member_grid, j).astype(np.int32)
             # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed)
+            if not same_grid(self._sparse):
+                self._sparse = None
             self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
                                               vertices=self._region, source=self._view(trajectory))
         elif lo < old.j_lo:

@@ -335,10 +335,12 @@ class AuthoringSession:
 
     @property
     def can_undo(self) -> bool:
+        """Whether there is an edit to :meth:`undo`."""
         return bool(self._undo)
 
     @property
     def can_redo(self) -> bool:
+        """Whether there is an undone edit to :meth:`redo`."""
         return bool(self._redo)
 
     @property
@@ -356,17 +358,18 @@ class AuthoringSession:
         """x_K + f of :attr:`result` (None before a solve)."""
         return None if self.result is None else self.result.trajectory
 
-    def state(self, time_s: float, which: str = "ikd") -> np.ndarray:
+    def state(self, time_s: float, which: str = "final") -> np.ndarray:
         """Vertex positions (N, 3) [m] at ``time_s`` [s]: ``"kinematic"`` x_K, ``"kd"`` the KD state of x_K, or
-        ``"ikd"`` the KD state of the current solution's x_K + f (the KD state of x_K before a solve). A constraint
-        time of the current solution returns the state the solve ended with (no simulation)."""
+        ``"final"`` (as in :meth:`ShotRun.states <kdfaces.shots.ShotRun.states>`) the KD state of the current
+        solution's x_K + f, the KD state of x_K before a solve (``"ikd"`` is accepted as another name for it).
+        A constraint time of the current solution returns the state the solve ended with (no simulation)."""
         from ..kd import simulate_kd
 
         t = float(time_s)
         if which == "kinematic":
             return self.trajectory.positions([t])[0]
-        if which not in ("kd", "ikd"):
-            raise KDInputError(f"state: which: expected 'kinematic', 'kd' or 'ikd', got {which!r}")
+        if which not in ("kd", "ikd", "final"):
+            raise KDInputError(f"state: which: expected 'kinematic', 'kd' or 'final', got {which!r}")
         traj = self.trajectory if (which == "kd" or self.result is None) else self.result.trajectory
         if traj is not self.trajectory:
             for c, x in zip(self.result.constraints, self.result.states):
@@ -382,7 +385,7 @@ class AuthoringSession:
                 self._states.popitem(last=False)
         return x
 
-    def nearest_vertex(self, point_m, time_s: float, which: str = "ikd") -> int:
+    def nearest_vertex(self, point_m, time_s: float, which: str = "final") -> int:
         """The vertex of the displayed state at ``time_s`` [s] nearest to ``point_m`` (3,) [m] (a screen pick's
         surface point)."""
         x = self.state(time_s, which)
@@ -412,7 +415,7 @@ class AuthoringSession:
             return None
         return np.asarray(c.target, dtype=np.float64).mean(axis=0)
 
-    def measured(self, row: int, which: str = "ikd") -> np.ndarray | None:
+    def measured(self, row: int, which: str = "final") -> np.ndarray | None:
         """The row's measured point (3,) [m] in the displayed KD state at its time (an end effector's weighted point,
         a group's centroid), to draw beside its handle; None for a velocity constraint or a row that does not
         build."""
@@ -514,7 +517,7 @@ class AuthoringSession:
             return f"{where}: {str(e).replace(str(self.path) + ': ', '')}"
         if r.enabled and c.kind != "velocity":
             try:
-                x = self.state(c.time_s, "ikd")
+                x = self.state(c.time_s, "final")
             except KDError as e:
                 return f"{where}: {e}"
             q = c.weights @ x[c.indices] if c.kind == "end_effector" else x[c.indices]
@@ -599,7 +602,7 @@ class AuthoringSession:
         if offset_m is not None:
             target = {"offset_m": _plain(np.asarray(offset_m, dtype=np.float64).reshape(-1))}
         else:
-            p = self.state(t, "ikd")[v] if point_m is None else np.asarray(point_m, dtype=np.float64).reshape(-1)
+            p = self.state(t, "final")[v] if point_m is None else np.asarray(point_m, dtype=np.float64).reshape(-1)
             target = {"point_m": _plain(p)}
         table = {"time_s": t, "kind": POINT_KIND, "group": [v], "target": target,
                  "label": label if label is not None else f"point {v}"}

@@ -41,8 +41,9 @@ class ShotRun:
 
     Attributes:
         times: frame times [s], shape (F,).
-        kinematic, kd: x_K and x_KD at every frame [m], shape (F, N, 3) (whole arrays, see above).
-        ikd: x_KD of the corrected trajectory x_K + f at every frame [m], (F, N, 3); None without constraints.
+        kinematic, kd, ikd, final: x_K, x_KD, x_KD of the corrected trajectory x_K + f (None without
+            constraints) and the shot's final trajectory at every frame [m], shape (F, N, 3) (whole arrays, see
+            above; each is a property with its own entry).
         ikd_result: the solver's result (None without constraints); check_errors: the independent check
             (each constrained KD state recomputed from scratch with the final correction) [m or m/s], (C,).
         window_s, window_auto_s, epsilon_m: the KD window used (with adaptive windows: the one the IKD solve

@@ -1,4 +1,5 @@
-"""The three tutorials in examples/ run as written (they are also rendered in the API reference site)."""
+"""The three tutorial scripts in examples/ run as written (they are also rendered in the API reference site; the
+notebook examples/authoring_tutorial.ipynb runs in tests/test_notebook.py)."""
 
 from __future__ import annotations
 

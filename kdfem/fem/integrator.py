@@ -204,12 +204,14 @@ class ImplicitEuler:
     bound, :meth:`~kdfem.fem.contact.ContactModel.path_clear`, checked on the first guess and again on the result,
     reusing the guess's bound less the nodes' move) is stepped exactly as without contact. Any other
     member is stepped alone with the barrier (velocity form of IPC, Li et al. 2020 eq. 6):
-    E_c(v) = E(v) + (κ̃/h²)·B(x_n + h v), gradient r + (κ̃/h)∇B, Newton matrix P + κ̃∇²B⁺ (ipctk's per-collision
-    PSD projection). The shared factorization is kept: the Newton system (P + U Uᵀ)Δv = −r, U Uᵀ the eigen-split of
-    the barrier Hessian on the DOFs it touches, is solved exactly by the Woodbury identity with k + 1 solves of P
-    (k = the barrier Hessian's rank, a few per contact), so contact never refactors. Every line search starts at
-    ipctk's collision-free step size (CCD, TightInclusion) toward the Newton step, so no iterate intersects; κ̃ is
-    ipctk's ``initial_barrier_stiffness`` at the step's first guess and ``update_barrier_stiffness`` after each
+    E_c(v) = E(v) + (κ̃/h²)·B(x_n + h v), gradient r + (κ̃/h)∇B, by projected Newton (IPC §4.1): the member's own
+    matrix (1 + hα)M + h²K⁺(x) + hβK_R + κ̃∇²B⁺, K⁺ the per-tet PSD-projected tangent at the iterate (its geometric
+    stiffness included) and ∇²B⁺ ipctk's per-collision PSD projection, factored directly each iteration
+    (:class:`_ContactNewton`; the shared corotated matrix lacks the geometric stiffness that holds a soft object in
+    tension, and its steps overshoot it). A step has converged when the full Newton step moves no node by ``tol_m``.
+    Every line search starts at ipctk's collision-free step size (CCD, TightInclusion) toward the Newton step, so no
+    iterate intersects; κ̃ is ipctk's ``initial_barrier_stiffness`` at the step's first guess and
+    ``update_barrier_stiffness`` (on squared distances, ipctk's convention) after each
     iteration.
     """
 
@@ -239,6 +241,7 @@ class ImplicitEuler:
         self.refactors = 0
         self.evaluations = 0  # evaluations of E and r
         self.contact_steps = 0  # member-steps taken on the contact path (ipctk)
+        self.contact_factorizations = 0  # Newton matrices factored on the contact path
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="kdfem-step") if self.threads > 1 else None
         self._workspaces: dict[tuple[int, int], _Workspace] = {}
         self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
@@ -553,15 +556,17 @@ class ImplicitEuler:
         kappa_f = kappa
         lag_friction()
         E, r, det, scale, col, V, gB = energy(v, kappa)
-        prev_d = np.sqrt(col.compute_minimum_distance(loc.mesh, V)) if len(col) else np.inf
-        prev = np.inf
-        it = 0
+        # ipctk's κ̃ update compares *squared* distances (its compute_minimum_distance) with 10⁻⁹ × the scene size
+        prev_d2 = col.compute_minimum_distance(loc.mesh, V) if len(col) else np.inf
+        newton = _ContactNewton(self, b, xn, Rm)
+        it, size = 0, np.inf
         while True:
             it += 1
             if it > self.max_iter:
                 raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
-                                            f"iterations (batch member {b})")
-            d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa, loc, friction, v)
+                                            f"iterations (batch member {b}; last position update "
+                                            f"{h * size:.3g} m > tol_m {self.tol_m} m)")
+            d = newton.direction(v, r, col, V, kappa, loc, friction)
             size = float(np.abs(d).max())
             if not np.isfinite(d).all():
                 raise SimulationBlowUpError(f"{where}: non-finite Newton update with contact in iteration {it}")
@@ -569,56 +574,73 @@ class ImplicitEuler:
             vt[0, fr] += d
             if widen(vt):  # the Newton step leaves the cut: widen it and evaluate the current iterate on it
                 E, r, det, scale, col, V, gB = energy(v, kappa)
-                d = self._contact_direction(lu, state, b, r, R[b], col, V, kappa, loc, friction, v)
+                d = newton.direction(v, r, col, V, kappa, loc, friction)
                 size = float(np.abs(d).max())
                 vt = v.copy()
                 vt[0, fr] += d
                 widen(vt)
+            # converged: the full Newton step (not the line search's fraction of it, which CCD may cut) moves no node
+            # by tol_m; it is taken when CCD allows it whole, else the search below bounds it as any other
             t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
+            done = h * size < self.tol_m
             slope = float((d * r).sum())
             while True:
                 vt = v.copy()
                 vt[0, fr] += t * d
                 Et, rt, dt, st, colt, Vt, gBt = energy(vt, kappa)
-                if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < self.tol_m):
+                if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < 0.1 * self.tol_m):
                     break
                 t *= 0.5
                 if t < 1e-8:
                     raise SimulationBlowUpError(f"{where}: line search with contact found no decrease (batch "
                                                 f"member {b})")
             v, E, r, col, V, gB = vt, Et, rt, colt, Vt, gBt
-            if h * t * size < self.tol_m:
+            if done:
                 break
             if len(col) and cm.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
-                dmin = float(np.sqrt(col.compute_minimum_distance(loc.mesh, V)))
-                k2 = float(ipctk.update_barrier_stiffness(prev_d, dmin, kappa_max, kappa, cm.scene_size_m))
-                prev_d = dmin
+                d2 = float(col.compute_minimum_distance(loc.mesh, V))
+                k2 = float(ipctk.update_barrier_stiffness(prev_d2, d2, kappa_max, kappa, cm.scene_size_m))
+                prev_d2 = d2
                 if k2 != kappa:
                     kappa = k2
                     E, r, det, scale, col, V, gB = energy(v, kappa)
-            if size > self.slow * prev and state.precond[b] is None and it >= 3:
-                state.precond[b] = self._factor(xn[0] + h * v[0])
-            prev = size
         v1[b] = v[0]
         self.last_kappa = kappa
         self.last_local_faces = len(loc.mesh.faces) - len(cm._obj_faces_local)
         return it
 
-    def _contact_direction(self, lu, state, b: int, r: np.ndarray, Rb: np.ndarray, col, V, kappa: float, loc,
-                           friction=None, v=None):
-        """Δv = −(P + κ̃ H⁺ + h D⁺)⁻¹ r (F, 3) for member ``b``: P's factorization and the Woodbury identity on the
-        eigen-split of the barrier's (and lagged friction's) PSD-projected Hessian over the DOFs it touches (class
-        docstring)."""
+
+class _ContactNewton:
+    """The Newton matrix of one member's step with contact, factored directly (scipy SuperLU) each iteration:
+    A = (1 + hα)M + h²K⁺(x) + hβK_R + κ̃∇²B⁺ (+ h∇²D⁺ with friction), on the free DOFs, at the iterate's positions
+    x = x_n + h v. K⁺ is the PSD-projected tangent stiffness (per tet, :meth:`FEMModel.element_stiffness`), so the
+    tension that holds a hanging braid up sideways (its geometric stiffness) is in it; K_R the β-damping's stiffness
+    corotated at x_n (as the potential's), fixed over the step; ∇²B⁺ ipctk's barrier Hessian with each collision's
+    block clamped to PSD. This is projected Newton (IPC, Li et al. 2020 §4.1): the shared corotated matrix lacks the
+    geometric stiffness, and its Newton steps overshoot a soft object in tension many times over (line searches cut
+    them to 1/64, 60 iterations do not converge), and a Woodbury correction for wide contact costs hundreds of
+    solves. A direct factorization of the member's matrix is cheap for the objects that touch colliders (the braid:
+    567 DOFs, ~1 ms)."""
+
+    def __init__(self, stepper: ImplicitEuler, b: int, xn: np.ndarray, Rn: np.ndarray):
+        md, h = stepper.model, stepper.step_s
+        self.stepper, self.b, self.xn = stepper, b, xn
+        self.base = stepper.M
+        if md.rayleigh_beta:
+            self.base = self.base + (h * md.rayleigh_beta) * md.pattern.assemble(md.warped_stiffness(Rn)[0])
+        cm = stepper.contact
+        self.dof = (3 * cm.free_index[:, None] + np.arange(3)).ravel()  # collision-mesh object DOF → free DOF
+        self.n_free = 3 * len(md.free)
+
+    def direction(self, v: np.ndarray, r: np.ndarray, col, V, kappa: float, loc, friction=None) -> np.ndarray:
+        """Δv = −A⁻¹ r (F, 3) at velocities ``v`` (1, N, 3) [m/s], gradient ``r`` (F, 3), collisions ``col`` at
+        collision-mesh vertices ``V`` (class docstring)."""
         import ipctk
 
-        cm, h = self.contact, self.step_s
-        F = r.shape[0]
-
-        def pinv(Y):  # P⁻¹ Y for Y (k, F, 3)
-            k = len(Y)
-            return -self._solve(lu, state, [b] * k, Y, np.ascontiguousarray(np.broadcast_to(Rb, (k, *Rb.shape))))
-
-        y0 = pinv(r[None])[0]
+        st = self.stepper
+        md, h, cm = st.model, st.step_s, st.contact
+        x1 = self.xn + h * v
+        A = self.base + (h * h) * md.pattern.assemble(md.element_stiffness(x1, project=True)[0])
         n = cm.num_object
         parts = []
         if len(col):
@@ -627,28 +649,11 @@ class ImplicitEuler:
         if friction is not None:
             parts.append(h * friction[1].hessian(friction[0], loc.mesh, friction[2](v),
                                                  ipctk.PSDProjectionMethod.CLAMP).tocsr()[: 3 * n, : 3 * n])
-        if not parts:
-            return -y0
-        H = sum(parts[1:], parts[0]).tocoo()
-        dof = (3 * cm.free_index[:, None] + np.arange(3)).ravel()  # collision-mesh object DOF → free DOF
-        touched = np.unique(np.concatenate([H.row, H.col]))
-        if not len(touched):
-            return -y0
-        Hs = np.zeros((len(touched), len(touched)))
-        pos = np.searchsorted(touched, H.row), np.searchsorted(touched, H.col)
-        np.add.at(Hs, pos, H.data)
-        lam, Q = np.linalg.eigh(0.5 * (Hs + Hs.T))
-        keep = lam > 1e-12 * max(lam.max(), 0.0) if lam.max() > 0 else np.zeros(len(lam), dtype=bool)
-        if not keep.any():
-            return -y0
-        U = Q[:, keep] * np.sqrt(lam[keep])  # (s, k)
-        rows = dof[touched]
-        Ufull = np.zeros((U.shape[1], 3 * F))
-        Ufull[:, rows] = U.T
-        Z = pinv(Ufull.reshape(-1, F, 3)).reshape(U.shape[1], 3 * F)  # (k, 3F): P⁻¹ U, as rows
-        S = np.eye(U.shape[1]) + Z[:, rows] @ U  # I + Uᵀ P⁻¹ U
-        w = np.linalg.solve(S, U.T @ y0.ravel()[rows])
-        return -(y0.ravel() - Z.T @ w).reshape(F, 3)
+        if parts:
+            H = sum(parts[1:], parts[0]).tocoo()
+            A = A + sp.csr_matrix((H.data, (self.dof[H.row], self.dof[H.col])), shape=(self.n_free, self.n_free))
+        st.contact_factorizations += 1
+        return -_factor_spd(A).solve(r.ravel()).reshape(-1, 3)
 
 
 def static_equilibrium(model: FEMModel, *, G: np.ndarray | None = None, rtol: float = 1e-8, max_iter: int = 60,

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from kdfaces.errors import KDInputError, SimulationBlowUpError
+from kdfaces.errors import KDInputError
 
 
 @pytest.fixture(scope="module")
@@ -140,22 +140,25 @@ def test_contact_aware_windows_call_site(scene_free):
     assert aw.window_s.shape == (3,) and (aw.window_s >= 0).all()
 
 
-@pytest.mark.xfail(raises=SimulationBlowUpError, strict=False,
-                   reason="kdfem.fem.contact: Newton with contact does not converge for the braid against the body "
-                          "at the head turn (t ≈ 0.38 s); issue 28, reported to the contact core")
 def test_full_simulation_flips_braid_without_intersection():
-    """The full simulation with contact flips the braid over the shoulder (its tip crosses the shoulder plane) and the
-    independent ipctk check finds no intersection on any evaluated frame."""
+    """The full simulation with contact flips the braid over the shoulder (its tip crosses the shoulder plane, at
+    t ≈ 0.68 s under BRAID_HEAD_KEYS) and the independent ipctk check finds no intersection and a positive distance
+    on every evaluated frame. The first 1.2 s (turn, flip and hold) at every second frame, to keep the test short."""
     from kdfaces.kd import simulate_full
     from kdfem.scenes.braid import build_braid_scene, contact_check, shoulder_flip
 
     sc = build_braid_scene(contact=True, threads=1)
     times = sc.animation.frame_times[::2]
+    times = times[times <= 1.2 + 1e-9]
     X = simulate_full(sc.system, sc.joints, times, step_s=sc.step_s)
     flip, front = shoulder_flip(sc, times, X)
     assert flip is not None and front.max() > 0
     c = contact_check(sc, times, X)
     assert c["intersections"] == 0 and c["min_distance_m"] > 0
+    # every step went through the contact model's own check too: the minimum distance stayed positive
+    cm = sc.system.contact
+    C, _ = cm.collider_pose(times, sc.joints)
+    assert all(not cm.intersects(X[k][cm.nodes], C[k]) for k in range(len(times)))
 
 
 def test_run_braid_summary_without_contact(tmp_path):

@@ -26,6 +26,14 @@ def scene_free():
     return build_braid_scene(contact=False, threads=1)
 
 
+@pytest.fixture(scope="module")
+def scene_contact():
+    """The scene with the body as collider."""
+    from kdfem.scenes.braid import build_braid_scene
+
+    return build_braid_scene(contact=True, threads=1)
+
+
 def test_braid_mesh_valid():
     from kdfem.geometry.braid import BraidParams, braid_tetmesh
     from kdfem.geometry.tetmesh import tet_quality
@@ -140,14 +148,14 @@ def test_contact_aware_windows_call_site(scene_free):
     assert aw.window_s.shape == (3,) and (aw.window_s >= 0).all()
 
 
-def test_full_simulation_flips_braid_without_intersection():
+def test_full_simulation_flips_braid_without_intersection(scene_contact):
     """The full simulation with contact flips the braid over the shoulder (its tip crosses the shoulder plane, at
     t ≈ 0.68 s under BRAID_HEAD_KEYS) and the independent ipctk check finds no intersection and a positive distance
     on every evaluated frame. The first 1.2 s (turn, flip and hold) at every second frame, to keep the test short."""
     from kdfaces.kd import simulate_full
-    from kdfem.scenes.braid import build_braid_scene, contact_check, shoulder_flip
+    from kdfem.scenes.braid import contact_check, shoulder_flip
 
-    sc = build_braid_scene(contact=True, threads=1)
+    sc = scene_contact
     times = sc.animation.frame_times[::2]
     times = times[times <= 1.2 + 1e-9]
     X = simulate_full(sc.system, sc.joints, times, step_s=sc.step_s)
@@ -159,6 +167,42 @@ def test_full_simulation_flips_braid_without_intersection():
     cm = sc.system.contact
     C, _ = cm.collider_pose(times, sc.joints)
     assert all(not cm.intersects(X[k][cm.nodes], C[k]) for k in range(len(times)))
+
+
+def test_contact_model_min_distance_is_braid_body(scene_contact):
+    """ContactModel.min_distance on the rest shape is the braid–body distance of the independent check (a distance,
+    not its square; no collider–collider or attached pairs), and inf within the default d̂ (the rest hangs clear)."""
+    from kdfem.scenes.braid import contact_check
+
+    sc = scene_contact
+    cm, x = sc.system.contact, sc.system.rest_equilibrium
+    C, _ = cm.collider_pose([0.0], sc.joints)
+    ref = contact_check(sc, [0.0], x[None], dhat_m=0.02)["min_distance_m"]
+    assert cm.min_distance(x[cm.nodes], C[0]) == np.inf and ref > cm.dhat_m
+    assert cm.min_distance(x[cm.nodes], C[0], within_m=0.02) == pytest.approx(ref, rel=1e-12)
+
+
+def test_kinematic_start_projected_out_of_the_body(scene_contact):
+    """A window start with the head turned: the carried rest shape intersects the body, the kinematic start is the
+    sweep out of it (HatSystem.start_state): clear (independent ipctk check), the same bits every time, attached
+    nodes exactly on the head; a start with the head still is the carried shape bit for bit."""
+    from kdfem.scenes.braid import contact_check
+
+    sc = scene_contact
+    cm = sc.system.contact
+    t = np.array([1.0])
+    kin = sc.system.observe_kinematic(sc.joints, t)
+    C, _ = cm.collider_pose(t, sc.joints)
+    assert cm.intersects(kin[0, cm.nodes], C[0])  # the carried shape goes through the shoulder
+    s1 = sc.system.initial_state(sc.joints, t)
+    s2 = sc.system.initial_state(sc.joints, t)
+    assert np.array_equal(s1.x, s2.x) and np.array_equal(s1.v, s2.v)
+    c = contact_check(sc, t, s1.x)
+    assert c["intersections"] == 0 and c["min_distance_m"] > 0
+    att = sc.braid.attached
+    assert np.allclose(s1.x[0, att], kin[0, att], atol=1e-12)
+    still = sc.system.initial_state(sc.joints, np.array([0.2]))
+    assert np.array_equal(still.x, sc.system.observe_kinematic(sc.joints, [0.2]))
 
 
 def test_run_braid_summary_without_contact(tmp_path):

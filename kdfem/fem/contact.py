@@ -552,6 +552,10 @@ class ContactModel:
         the ipctk CollisionMesh. Returns self. Raises KDInputError for a d̂ too small for float64."""
         import ipctk
 
+        # one ipctk thread: its TBB reductions (barrier sums, collision sets) reorder with the thread count and
+        # scheduling, which changed the last bits of a contact step from run to run; a KD frame must give the same
+        # bits every time (the kinematic start's sweep and the windows are stepped member by member anyway)
+        ipctk.set_num_threads(1)
         N = model.mesh.num_nodes
         Fo = self.object_faces
         if Fo.min() < 0 or Fo.max() >= N:
@@ -796,14 +800,17 @@ class ContactModel:
                                    "collider; expected the object clear of every collider at rest (move it, or cut "
                                    "the collider where the object rests on it)")
 
-    def min_distance(self, x_obj: np.ndarray, C: np.ndarray) -> float:
-        """ipctk's minimum distance [m] between the object's contact nodes (n, 3) and the colliders (Vc, 3) (over
-        pairs within d̂; inf when none is)."""
+    def min_distance(self, x_obj: np.ndarray, C: np.ndarray, *, within_m: float | None = None) -> float:
+        """ipctk's minimum distance [m] (not squared: ipctk's ``compute_minimum_distance`` gives d², this takes the
+        root) between the object's contact surface (contact nodes (n, 3) [m]) and the colliders (Vc, 3) [m], over
+        object–collider pairs within ``within_m`` [m] (default d̂); inf when no pair is that close. Pairs inside the
+        object or between collider vertices never count (the mesh's filter), nor attached nodes (not contact
+        nodes)."""
         import ipctk
 
         V = self.vertices(x_obj, C)
         col = ipctk.NormalCollisions()
-        col.build(self.mesh, V, self.dhat_m)
+        col.build(self.mesh, V, self.dhat_m if within_m is None else max(float(within_m), self.dhat_m))
         if len(col) == 0:
             return np.inf
         return float(np.sqrt(col.compute_minimum_distance(self.mesh, V)))

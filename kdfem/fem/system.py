@@ -33,6 +33,49 @@ __all__ = ["HatSystem"]
 #: grid samples of the head's transforms kept per trajectory content (3 × 4 × 4 float64 each: ~4 MB)
 _HEAD_CACHE_ROWS = 10_000
 
+#: The kinematic start's projection out of the colliders (:meth:`HatSystem.start_state`): steps of the sweep from
+#: the rest pose to the window start's pose, its pseudo-time step [s] and its damping relative to the head α [1/s]
+#: (αh = 5: each step keeps a sixth of the motion relative to the head, so the object follows the head as if carried,
+#: except where a collider pushes it).
+KINEMATIC_SWEEP_STEPS, KINEMATIC_SWEEP_STEP_S, KINEMATIC_SWEEP_ALPHA = 24, 0.05, 100.0
+
+
+class _PoseRamp:
+    """The joint-angle path from the rest pose to the pose of ``trajectory`` at ``time_s`` [s]: angles s(τ)·θ(t) and
+    root translation s(τ)·p(t), s the smoothstep 3u² − 2u³ of u = τ/``duration_s`` (zero rate at both ends). A
+    trajectory for :func:`~kdfem.fem.attachment.joint_trajectory` (skeleton, state_shape, evaluate,
+    root_translation); ``version`` None (never cached)."""
+
+    version = None
+
+    def __init__(self, trajectory, time_s: float, duration_s: float):
+        jt = joint_trajectory(trajectory)
+        self.skeleton, self.state_shape = jt.skeleton, tuple(jt.state_shape)
+        t = np.array([float(time_s)])
+        self._theta = np.asarray(jt.evaluate(t, 0)[0], dtype=np.float64)[0]  # (J, 3) [rad]
+        self._root = np.asarray(root_translation(jt, t, 0)[0], dtype=np.float64)[0]  # (3,) [m]
+        self.start, self.end, self.duration = 0.0, float(duration_s), float(duration_s)
+
+    def _s(self, times, order):
+        u = np.clip(np.atleast_1d(np.asarray(times, dtype=np.float64)) / self.duration, 0.0, 1.0)
+        inside = (u > 0) & (u < 1)
+        s = [3 * u ** 2 - 2 * u ** 3, (6 * u - 6 * u ** 2) / self.duration * inside,
+             (6 - 12 * u) / self.duration ** 2 * inside]
+        return s[:order + 1]
+
+    def evaluate(self, times, order: int = 2):
+        return tuple(si[:, None, None] * self._theta[None] for si in self._s(times, order))
+
+    def root_translation(self, times, order: int = 2):
+        return tuple(si[:, None] * self._root[None] for si in self._s(times, order))
+
+
+def _rigid_velocity(G: np.ndarray, dG: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The head's rigid velocity Ġ·G⁻¹·x (B, N, 3) [m/s] at positions ``x`` (B, N, 3) [m] (transforms and rates
+    ``G``, ``dG`` (B, 4, 4)): Ġ·X for the carried rest shape X."""
+    Gi = np.linalg.inv(G)
+    return apply_frame(dG @ Gi, x)
+
 
 @dataclass
 class HatSystem:
@@ -115,8 +158,7 @@ class HatSystem:
         stop = Event()
 
         def run(slot: int, idx: np.ndarray) -> np.ndarray:
-            state = FEMState(x=apply_frame(G[0, idx], self.rest_equilibrium),
-                             v=apply_frame(dG[0, idx], self.rest_equilibrium))
+            state = FEMState(*self.start_state(trajectory, t0[idx], G[0, idx], dG[0, idx]))
             where = f"hat (batch members {idx[0]}–{idx[-1]}, windows from {t0[idx[0]]:.4g} s)"
             if self.contact is not None:
                 self._check_contact_start(state, trajectory, t0[idx])
@@ -205,12 +247,79 @@ class HatSystem:
         else:
             head = None
             G, dG, _ = head_motion(trajectory, joint=self.joint).transforms(t0)
-        x = apply_frame(G, self.rest_equilibrium)
-        v = apply_frame(dG, self.rest_equilibrium)  # Ġ·X: rotation rate times X plus translation rate
+        x, v = self.start_state(trajectory, t0, G, dG)  # Ġ·X: rotation rate times X plus translation rate
         state = FEMState(x=x, v=v, head=head)
         if self.contact is not None:
             self._check_contact_start(state, trajectory, t0)
         return state
+
+    def start_state(self, trajectory, times, G, dG):
+        """The kinematic state at window starts ``times`` (B,) [s] (head transforms and rates ``G``, ``dG``
+        (B, 4, 4)): positions (B, N, 3) [m], the rest equilibrium carried rigidly by the head, **projected out of
+        the colliders**, and velocities (B, N, 3) [m/s], the head's rigid velocity there (Ġ·X_eq for the carried
+        shape, Ġ·G⁻¹·x for a projected one).
+
+        Without colliders, or where the carried shape does not intersect one, it is the carried shape itself (bit
+        for bit as before). Where it does (a braid carried by a turned head swings rigidly into the shoulder), the
+        projection is a sweep: the head's pose moves from the rest pose to the pose at t₀ along the straight
+        joint-angle path (:class:`_PoseRamp`) in :data:`KINEMATIC_SWEEP_STEPS` implicit Euler steps with contact
+        (CCD and the barrier: no iterate intersects), starting from the rest equilibrium, which is clear of every
+        collider in the rest pose (else :meth:`initial_state` refuses it), with damping relative to the head
+        α = :data:`KINEMATIC_SWEEP_ALPHA` (the object follows the head as if carried, except where a collider pushes
+        it). It rests on three things: the sweep depends only on the pose at t₀ (not on the trajectory before it),
+        so frames stay history-free and the same frame always gives the same bits; it is deterministic (one
+        member's own steps, no batch effects); and it never intersects (the contact step's CCD), so every window
+        starts clear. Its cost (24 contact steps) is paid only by starts that need it."""
+        x = apply_frame(G, self.rest_equilibrium)
+        v = apply_frame(dG, self.rest_equilibrium)
+        cm = self.contact
+        if cm is None:
+            return x, v
+        import ipctk
+
+        t0 = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        C, K = cm.collider_pose(t0, trajectory)
+        for b in range(len(x)):
+            xo = x[b, cm.nodes]
+            Gb = [None if g is None else g[b] for g in K]
+            if cm.clearance(xo, C[b], Gb, margin_m=cm.dhat_m).min() > cm.dhat_m:
+                continue
+            if not ipctk.has_intersections(cm.mesh, cm.vertices(xo, C[b])):
+                continue
+            x[b] = self._sweep(trajectory, float(t0[b]))
+            v[b] = _rigid_velocity(G[b:b + 1], dG[b:b + 1], x[b:b + 1])[0]
+        return x, v
+
+    def _sweep(self, trajectory, time_s: float) -> np.ndarray:
+        """Node positions (N, 3) [m] at the end of the projection sweep to the pose at ``time_s`` [s]
+        (:meth:`start_state`)."""
+        import dataclasses
+
+        from .contact import ContactModel
+
+        if getattr(self, "_sweeper", None) is None:
+            cm = self.contact
+            model = dataclasses.replace(self.model, rayleigh_alpha=KINEMATIC_SWEEP_ALPHA)
+            ccm = ContactModel(cm.object_faces, cm.colliders, dhat_m=cm.dhat_m, kappa=cm.kappa,
+                               self_contact=cm.self_contact).bind(model)
+            self._sweeper = (ccm, ImplicitEuler(model, KINEMATIC_SWEEP_STEP_S, tol_m=self.tol_m, threads=1,
+                                                reference=self.rest_equilibrium, contact=ccm))
+        ccm, stepper = self._sweeper
+        h, n = KINEMATIC_SWEEP_STEP_S, KINEMATIC_SWEEP_STEPS
+        ramp = _PoseRamp(trajectory, time_s, h * n)
+        motion = head_motion(ramp, joint=self.joint)
+        tau = h * np.arange(n + 1)
+        G, dG, _ = motion.transforms(tau)
+        C, K = ccm.collider_pose(tau, ramp)
+        x = apply_frame(G[:1], self.rest_equilibrium)
+        ccm.check_start(x, C[:1], [None if g is None else g[:1] for g in K], where="kinematic start (rest pose)")
+        state = FEMState(x=x, v=np.zeros_like(x))
+        where = f"kinematic start at {time_s:.4g} s (sweep out of the colliders)"
+        for k in range(n):
+            obstacles = (C[k:k + 1], C[k + 1:k + 2], [None if g is None else g[k:k + 1] for g in K],
+                         [None if g is None else g[k + 1:k + 2] for g in K])
+            stepper.step(state, G[k + 1:k + 2], dG[k + 1:k + 2], where=where, obstacles=obstacles)
+        return state.x[0].copy()
 
     def obstacles(self, trajectory, times, step_s: float, G0=None, G1=None):
         """The colliders' poses for a step from ``times`` (B,) [s] to ``times`` + ``step_s``: (C0, C1, K0, K1),

@@ -145,10 +145,6 @@ class TrajectoryBake:
         return new
 
     def _append(self, x: np.ndarray, v: np.ndarray) -> None:
-        bad = ~(np.isfinite(x).all(axis=(1, 2)) & np.isfinite(v).all(axis=(1, 2)))
-        if bad.any():
-            t = self.times(np.arange(self.num_rows, self.num_rows + len(x)))[np.argmax(bad)]
-            raise KDInputError(f"trajectory: x_K or its velocity is not finite at t = {t:.6g} s")
         r0, r1 = self.num_rows, self.num_rows + len(x)
         if r1 > len(self._x):  # grow geometrically, so appending a row at a time stays O(rows appended)
             cap = max(r1, 2 * len(self._x))
@@ -159,14 +155,21 @@ class TrajectoryBake:
                 wp.copy(xk, self.xk, count=r0 * x.shape[1])
                 wp.copy(vk, self.vk, count=r0 * x.shape[1])
             self.xk, self.vk = xk, vk
-        self._x[r0:r1] = x
+        self._x[r0:r1] = x  # rows from num_rows on are spare until it moves past them
         self._v[r0:r1] = v
+        flat = np.ascontiguousarray(self._x[r0:r1].reshape(-1, 3).T)  # (3, rows·N): reduced along rows, ~15× faster
+        lo, hi = flat.min(axis=1), flat.max(axis=1)
+        vmax = float(np.abs(self._v[r0:r1]).max()) if r1 > r0 else 0.0
+        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and np.isfinite(vmax)):  # NaN and ±inf propagate
+            bad = ~(np.isfinite(x).all(axis=(1, 2)) & np.isfinite(v).all(axis=(1, 2)))
+            if bad.any():
+                t = self.times(np.arange(r0, r1))[np.argmax(bad)]
+                raise KDInputError(f"trajectory: x_K or its velocity is not finite at t = {t:.6g} s")
         self.xk[r0:r1].assign(self._x[r0:r1])
         self.vk[r0:r1].assign(self._v[r0:r1])
         self.num_rows = r1
-        flat = np.ascontiguousarray(self._x[r0:r1].reshape(-1, 3).T)  # (3, rows·N): reduced along rows, ~15× faster
-        self._lo, self._hi = np.minimum(self._lo, flat.min(axis=1)), np.maximum(self._hi, flat.max(axis=1))
-        self._vmax = max(self._vmax, float(np.abs(self._v[r0:r1]).max()))
+        self._lo, self._hi = np.minimum(self._lo, lo), np.maximum(self._hi, hi)
+        self._vmax = max(self._vmax, vmax)
         self.radius = float(np.abs(np.concatenate([self._lo, self._hi])).max())
         # how far the trajectory reaches: its extent, or where its fastest vertex gets in a second
         self.extent = max(float((self._hi - self._lo).max()), self._vmax * 1.0)

@@ -143,9 +143,37 @@ def test_contact_aware_windows_call_site(scene_free):
 
     sc = scene_free
     t = np.array([0.4, 1.0, 2.0])
-    aw, method = contact_aware_windows(sc.system, sc.joints, t, step_s=sc.step_s)
-    assert "not yet contact-aware" in method
+    aw, method, events = contact_aware_windows(sc.system, sc.joints, t, step_s=sc.step_s)
+    assert "not contact-aware" in method and events == []
     assert aw.window_s.shape == (3,) and (aw.window_s >= 0).all()
+
+
+def test_contact_aware_windows_reach_back_past_contact(scene_contact):
+    """A pass that comes within the contact band at one frame: one event starting a frame earlier; windows of the
+    frames from there on start before it (by its own modal window) until its left-behind deviation has decayed
+    below ε under the modal envelope; frames before it keep their §5.3 windows; never before the shot start."""
+    from kdfem.scenes.braid import contact_aware_windows
+
+    sc = scene_contact
+    t = np.round(np.arange(0.0, 0.2801, 0.04), 10)
+    X = sc.system.observe_kinematic(sc.joints, t)  # head still until 0.3 s: the rest 4.1 mm from the back
+    cm = sc.system.contact
+    k = 3
+    X[k:k + 2, :, 2] += 4.13e-3 - 0.5 * cm.dhat_m  # two frames pushed within d̂ of the back
+    C, _ = cm.collider_pose(t, sc.joints)
+    assert not cm.intersects(X[k, cm.nodes], C[k])
+    aw, method, events = contact_aware_windows(sc.system, sc.joints, t, step_s=sc.step_s, pass_positions=X)
+    modal = sc.system.adaptive_windows(sc.joints, t, step_s=sc.step_s)
+    assert "contact-aware" in method and len(events) == 1
+    ev = events[0]
+    assert ev["start_s"] == pytest.approx(t[k - 1]) and ev["end_s"] == pytest.approx(t[k + 1])
+    assert ev["left_behind_m"] > 0
+    assert np.array_equal(aw.steps[:k - 1], modal.steps[:k - 1])
+    gone = np.inf if ev["decayed_s"] is None else ev["decayed_s"]
+    live = (t >= ev["start_s"]) & ((t <= ev["end_s"]) | (t < gone))
+    assert live[k - 1:k + 2].all()
+    assert (t[live] - aw.window_s[live] <= ev["window_start_s"] + 1e-9).all()
+    assert (aw.window_s >= modal.window_s - 1e-12).all() and (t - aw.window_s >= -1e-9).all()
 
 
 def test_full_simulation_flips_braid_without_intersection(scene_contact):

@@ -37,7 +37,8 @@ from kdfaces.window import AdaptiveWindows, impulse_responses, truncation_steps
 
 from ..fem.attachment import head_motion
 
-__all__ = ["modal_kicks", "modal_adaptive_windows", "ADAPTIVE_MODES", "NONLINEAR_MARGIN"]
+__all__ = ["modal_kicks", "modal_adaptive_windows", "contact_aware_windows", "ADAPTIVE_MODES", "NONLINEAR_MARGIN",
+           "CONTACT_BAND_DHAT"]
 
 #: Modes the adaptive bound sums over.
 ADAPTIVE_MODES = 12
@@ -116,3 +117,107 @@ def modal_adaptive_windows(system, trajectory, times=None, *, step_s: float | No
         steps[sel], bound[sel] = n[k_all[sel]], margin * e[k_all[sel]]
     return AdaptiveWindows(times=t, steps=steps, window_s=steps * h, bound_m=bound, epsilon_m=eps, step_s=h,
                            start_s=s, history_steps=int(L))
+
+
+#: A frame is "in contact" in the plan's pass when the object comes within this many d̂ of a collider (the barrier acts
+#: within d̂; the pass is sampled at frames, so contacts between frames are caught by the wider band).
+CONTACT_BAND_DHAT = 10.0
+
+
+def _decay_envelope(basis, t_s: np.ndarray) -> np.ndarray:
+    """max over modes of the free response envelope of a unit initial displacement after ``t_s`` (T,) [s]:
+    e^(−λ t)/√(1 − ζ²) for an underdamped mode (λ = ζω), 2·e^(−λ_slow t) for an (over)critically damped one
+    (λ_slow = ω(ζ − √(ζ² − 1)), its slower root) → (T,)."""
+    m, k, c = basis.mass, basis.stiffness, basis.damping
+    w = np.sqrt(k / m)
+    z = c / (2 * np.sqrt(m * k))
+    under = z < 0.99
+    lam = np.where(under, z * w, w * (z - np.sqrt(np.maximum(z * z - 1.0, 0.0))))
+    amp = np.where(under, 1.0 / np.sqrt(np.maximum(1.0 - z * z, 1e-12)), 2.0)
+    t = np.maximum(np.atleast_1d(np.asarray(t_s, dtype=np.float64)), 0.0)
+    return (amp[None, :] * np.exp(-lam[None, :] * t[:, None])).max(axis=1)
+
+
+def contact_aware_windows(system, trajectory, times, pass_positions, *, step_s: float | None = None,
+                          epsilon_m: float | None = None, start_s: float | None = None,
+                          modes: int = ADAPTIVE_MODES, margin: float = NONLINEAR_MARGIN,
+                          band_m: float | None = None):
+    """Per-frame KD windows that reach back past every contact event whose effect has not decayed below ε (issue
+    28; paper §6.3, §7), for a :class:`~kdfem.fem.HatSystem` with colliders. Returns (AdaptiveWindows, events):
+    events a list of dicts (``start_s``, ``end_s``, ``left_behind_m``, ``decayed_s`` (None: not within the shot),
+    ``window_start_s``: where windows that must remember it start).
+
+    The plan, computed once per shot from a **pass**: ``pass_positions`` (T, N, 3) [m], the object's node positions
+    at ``times`` (T,) [s] from one sequential simulation of the shot with contact (any step; the scene's run).
+
+    1. Contact intervals: frames where the pass comes within ``band_m`` (default :data:`CONTACT_BAND_DHAT`·d̂) of a
+       collider (:meth:`~kdfem.fem.contact.ContactModel.min_distance`); an event is a run of such frames, starting
+       one frame early (it may begin between frames).
+    2. What a contact leaves behind: D, the pass's deviation ‖x_pass − x_K‖ (the norm ε measures; x_K the rest
+       equilibrium carried by the head) at the event's last frame. It bounds the state the contact hands over to
+       contact-free dynamics, which a window starting after the event would not know.
+    3. Decay: after the event, that deviation decays at most as the slowest free modal envelope of the lowest
+       ``modes`` modes (:func:`_decay_envelope`, linear as §5.3, sized with ``margin``): its effect at t is
+       ``margin``·D·env(t − t_end), decayed once ≤ ε.
+    4. Windows: each frame's §5.3 modal adaptive window (:func:`modal_adaptive_windows`), extended so that it starts
+       before every event that has begun and is still in contact or not yet decayed at that frame, by that event's
+       own modal window at its start (the approach into the contact is inside the window too); never before the
+       shot start ``start_s``.
+
+    Frames stay history-free given the plan (each is a KD window of its δ(t); the same plan gives the same bits). A
+    contact that leaves the object in another equilibrium (a braid draped over the shoulder) never decays: windows
+    after it reach back to before it, and KD there becomes the full simulation from before the event, which is the
+    honest answer."""
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    X = np.asarray(pass_positions, dtype=np.float64)
+    if X.shape != (len(t), *system.rest_equilibrium.shape):
+        raise KDInputError(f"pass_positions: expected ({len(t)}, {len(system.rest_equilibrium)}, 3) node positions "
+                           f"[m] at the {len(t)} times, got {X.shape}")
+    aw = modal_adaptive_windows(system, trajectory, t, step_s=step_s, epsilon_m=epsilon_m, start_s=start_s,
+                                modes=modes, margin=margin)
+    cm = system.contact
+    if cm is None:
+        return aw, []
+    import scipy.sparse as sp
+
+    from .analysis import modal_basis
+
+    h, eps, s = aw.step_s, aw.epsilon_m, aw.start_s
+    band = CONTACT_BAND_DHAT * cm.dhat_m if band_m is None else float(band_m)
+    C, _ = cm.collider_pose(t, trajectory)
+    near = np.array([cm.min_distance(X[k, cm.nodes], C[k], within_m=band) <= band for k in range(len(t))])
+    kin = system.observe_kinematic(trajectory, t)
+    dev = np.linalg.norm((X - kin).reshape(len(t), -1), axis=1)
+    md = system.model
+    basis = modal_basis(md.rest_stiffness(), sp.diags(md.free_masses), count=modes,
+                        rayleigh_alpha=md.rayleigh_alpha, rayleigh_beta=md.rayleigh_beta)
+    events = []
+    k = 0
+    while k < len(t):
+        if not near[k]:
+            k += 1
+            continue
+        a = k
+        while k + 1 < len(t) and near[k + 1]:
+            k += 1
+        b = k
+        ta = float(t[max(a - 1, 0)])
+        D = float(dev[b])
+        # the first time after the event's end at which margin·D·env ≤ ε (inf when it never does within the shot)
+        later = t[t >= t[b]]
+        ok = margin * D * _decay_envelope(basis, later - t[b]) <= eps
+        decayed = float(later[np.argmax(ok)]) if ok.any() and b + 1 < len(t) else np.inf
+        events.append({"start_s": ta, "end_s": float(t[b]), "left_behind_m": D,
+                       "decayed_s": decayed if np.isfinite(decayed) else None,
+                       "window_start_s": max(s, ta - float(aw.window_s[max(a - 1, 0)]))})
+        k += 1
+    start = t - aw.window_s
+    for ev in events:
+        gone = np.inf if ev["decayed_s"] is None else ev["decayed_s"]
+        live = (t >= ev["start_s"]) & ((t <= ev["end_s"]) | (t < gone))
+        start = np.where(live, np.minimum(start, ev["window_start_s"]), start)
+    start = np.maximum(start, s)
+    steps = np.maximum(aw.steps, np.ceil((t - start) / h - 1e-9).astype(np.int64))
+    out = AdaptiveWindows(times=t, steps=steps, window_s=steps * h, bound_m=aw.bound_m, epsilon_m=eps, step_s=h,
+                          start_s=s, history_steps=aw.history_steps)
+    return out, events

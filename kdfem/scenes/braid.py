@@ -15,8 +15,9 @@ number 4 ρ g L³ / (E r²) ≈ 100 makes it hang and swing like a rope. Rayleig
 friction; relative to the head) takes its pendulum swing (ω ≈ 6 rad/s, damping ratio α/2ω ≈ 0.4) down as e^(−αt/2),
 to 8 % after a second; the §5.3 window of the turn is then 1.7 s, shorter than the time left after the flip.
 
-Contact-aware windows are not written yet: :func:`contact_aware_windows` is where they go, and for now it returns the
-modal adaptive windows of :mod:`kdfem.modal.adaptive` (summary ``"method"`` says so).
+Contact-aware windows (:func:`contact_aware_windows`, :func:`kdfem.modal.adaptive.contact_aware_windows`): the modal
+adaptive windows, extended past every contact event of the shot's sequential pass whose effect has not decayed below
+ε; the braid stays draped over the shoulder after the flip, so its windows after the flip reach back to before it.
 """
 
 from __future__ import annotations
@@ -187,13 +188,20 @@ def contact_check(scene: BraidScene, times, X, *, dhat_m: float = 0.01) -> dict:
             "min_distance_per_frame_m": dist}
 
 
-def contact_aware_windows(system, trajectory, times, *, step_s: float, epsilon_m: float | None = None):
-    """Per-frame KD windows that should reach back past every contact event whose effect has not decayed below ε.
+def contact_aware_windows(system, trajectory, times, *, step_s: float, epsilon_m: float | None = None,
+                          pass_positions=None):
+    """Per-frame KD windows that reach back past every contact event whose effect has not decayed below ε
+    (:func:`kdfem.modal.adaptive.contact_aware_windows`: contact intervals from ``pass_positions`` (T, N, 3) [m], a
+    sequential simulation of the shot with contact at ``times``; what each contact leaves behind; its modal decay).
+    Without colliders or without a pass, the §5.3 modal adaptive windows (which know only the object's own
+    dynamics). Returns (:class:`kdfaces.window.AdaptiveWindows`, method label, contact events)."""
+    if system.contact is None or pass_positions is None:
+        aw = system.adaptive_windows(trajectory, times, step_s=step_s, epsilon_m=epsilon_m)
+        return aw, "modal-adaptive (no contact pass: not contact-aware)", []
+    from ..modal.adaptive import contact_aware_windows as plan
 
-    Not contact-aware yet: this returns the modal adaptive windows of §5.3 (:mod:`kdfem.modal.adaptive`), which know
-    only the object's own dynamics. Returns (:class:`kdfaces.window.AdaptiveWindows`, method label)."""
-    aw = system.adaptive_windows(trajectory, times, step_s=step_s, epsilon_m=epsilon_m)
-    return aw, "modal-adaptive (not yet contact-aware)"
+    aw, events = plan(system, trajectory, times, pass_positions, step_s=step_s, epsilon_m=epsilon_m)
+    return aw, "contact-aware (modal adaptive, extended past undecayed contact events of the pass)", events
 
 
 def run_braid(out, *, frame_stride: int = 1, movie: bool = True, contact: bool = True, progress: bool = False,
@@ -222,7 +230,10 @@ def run_braid(out, *, frame_stride: int = 1, movie: bool = True, contact: bool =
     t0 = time.perf_counter()
     fixed = np.asarray(simulate_kd(system, joints, times, window, step_s=h))
     fixed_s = time.perf_counter() - t0
-    aw, method = contact_aware_windows(system, joints, times, step_s=h, epsilon_m=eps)
+    # the plan's pass: the shot's sequential simulation with contact (here the ground truth's own run, computed
+    # once per shot; without contact there are no events)
+    aw, method, events = contact_aware_windows(system, joints, times, step_s=h, epsilon_m=eps,
+                                               pass_positions=full if scene.contact else None)
     t0 = time.perf_counter()
     aware = np.asarray(simulate_kd(system, joints, times, aw.window_s, step_s=h))
     aware_s = time.perf_counter() - t0
@@ -260,6 +271,7 @@ def run_braid(out, *, frame_stride: int = 1, movie: bool = True, contact: bool =
                          "max_error_after_flip_m": float(err_fixed[after].max(initial=0.0)),
                          "frames_above_epsilon": int((err_fixed > eps).sum()), "ms_per_frame": 1e3 * fixed_s / n},
                "contact_aware": {"method": method, "mean_window_s": float(np.mean(aw.window_s)),
+                                 "events": events,
                                  "max_error_vs_full_m": float(err_aware.max()),
                                  "frames_above_epsilon": int((err_aware > eps).sum()),
                                  "ms_per_frame": 1e3 * aware_s / n},

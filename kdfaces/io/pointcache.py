@@ -42,6 +42,22 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _UNIFORM_RTOL = 1e-6  # relative tolerance on frame spacing for PC2 (uniform samples only)
 
 
+def _checked_block(path, block, done: int, num_vertices: int, num_times: int) -> np.ndarray:
+    """``block`` as the next (k, N, 3) frames [m] of a cache at ``path`` that has ``done`` of its ``num_times``
+    frames: one :class:`KDInputError` naming the file and the frames for a wrong shape, too many frames, a value
+    that is not finite or one beyond the float32 range the file stores."""
+    x = np.asarray(block)
+    where = f"{path}: frames {done}..{done + len(x) - 1}"
+    if x.ndim != 3 or x.shape[1:] != (num_vertices, 3):
+        raise KDInputError(f"{where}: positions: expected shape (k, {num_vertices}, 3), got {x.shape}")
+    if done + len(x) > num_times:
+        raise KDInputError(f"{path}: more frames of positions than the {num_times} frame times")
+    check_finite(x, f"{where} positions")
+    if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
+        raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+    return x
+
+
 @dataclass(frozen=True)
 class PointCache:
     """A read-back point cache.
@@ -191,15 +207,7 @@ class USDWriter:
 
     def write(self, block) -> None:
         """Append the next (k, N, 3) frames of positions [m] (a binary layer is saved after each block)."""
-        p, n, x = self.path, self.num_vertices, np.asarray(block)
-        where = f"{p}: frames {self.done}..{self.done + len(x) - 1}"
-        if x.ndim != 3 or x.shape[1:] != (n, 3):
-            raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
-        if self.done + len(x) > len(self.times):
-            raise KDInputError(f"{p}: more frames of positions than the {len(self.times)} frame times")
-        check_finite(x, f"{where} positions")
-        if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
-            raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+        p, x = self.path, _checked_block(self.path, block, self.done, self.num_vertices, len(self.times))
         _usd_samples(self._points, self._extent, self._codes[self.done:self.done + len(x)], x, self.unit_m)
         self.done += len(x)
         if p.suffix != ".usda":
@@ -431,15 +439,7 @@ class PC2Writer:
 
     def write(self, block) -> None:
         """Append the next (k, N, 3) frames of positions [m]."""
-        p, n, x = self.path, self.num_vertices, np.asarray(block)
-        where = f"{p}: frames {self.done}..{self.done + len(x) - 1}"
-        if x.ndim != 3 or x.shape[1:] != (n, 3):
-            raise KDInputError(f"{where}: positions: expected shape (k, {n}, 3), got {x.shape}")
-        if self.done + len(x) > len(self.times):
-            raise KDInputError(f"{p}: more frames of positions than the {len(self.times)} frame times")
-        check_finite(x, f"{where} positions")
-        if np.abs(x).max(initial=0.0) > _FLOAT32_MAX:
-            raise KDInputError(f"{where}: positions exceed the float32 range the file stores")
+        p, x = self.path, _checked_block(self.path, block, self.done, self.num_vertices, len(self.times))
         out = (x.astype(np.float32).astype(np.float64) / self.unit_m).astype("<f4")
         try:
             if self.done == 0:

@@ -29,7 +29,7 @@ import numpy as np
 from .. import defaults
 from ..errors import KDInputError
 from ..kd import simulate_kd, window_steps
-from .viewer import MODES, PlotterWindow, check_screenshot_path, check_window_size
+from .viewer import PlotterWindow, check_screenshot_path, check_window_size
 
 __all__ = ["PunchViewer", "view_punch", "add_view_options", "punch_view_command", "ARM_COLOR", "TARGET_COLOR"]
 
@@ -268,17 +268,6 @@ class PunchViewer(PlotterWindow):
         """Timeline slider: show frame ``round(value)`` (clamped to the punch)."""
         self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
         self.update()
-
-    def set_mode(self, mode: str) -> None:
-        """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
-        if mode not in MODES:
-            raise KDInputError(f"mode: expected one of {MODES}, got {mode!r}")
-        self.mode = mode
-        self.update()
-
-    def cycle_mode(self) -> None:
-        """Key ``m``: kinematic → KD → IKD → kinematic."""
-        self.set_mode(MODES[(MODES.index(self.mode) + 1) % len(MODES)])
 
     def set_window(self, value) -> None:
         """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""

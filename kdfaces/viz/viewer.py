@@ -74,6 +74,17 @@ class PlotterWindow:
     ``plotter`` (pyvista), status ``_text`` actor, ``frame``/``times``/``set_frame`` and ``playing`` flag: frame
     steps, playback, the status redraw, a screenshot, the window loop."""
 
+    def set_mode(self, mode: str) -> None:
+        """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
+        if mode not in MODES:
+            raise KDInputError(f"mode: expected one of {MODES}, got {mode!r}")
+        self.mode = mode
+        self.update()
+
+    def cycle_mode(self) -> None:
+        """Key ``m``: kinematic → KD → IKD → kinematic."""
+        self.set_mode(MODES[(MODES.index(self.mode) + 1) % len(MODES)])
+
     def step_frame(self, delta: int = 1) -> None:
         """Move ``delta`` frames, wrapping around."""
         self.set_frame((self.frame + int(delta)) % len(self.times))
@@ -397,17 +408,6 @@ class ShotViewer(PlotterWindow):
         if old is not self.system and hasattr(old, "close"):
             old.close()
         self.message = str(self.session.status)
-
-    def set_mode(self, mode: str) -> None:
-        """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
-        if mode not in MODES:
-            raise KDInputError(f"mode: expected one of {MODES}, got {mode!r}")
-        self.mode = mode
-        self.update()
-
-    def cycle_mode(self) -> None:
-        """Key ``m``: kinematic → KD → IKD → kinematic."""
-        self.set_mode(MODES[(MODES.index(self.mode) + 1) % len(MODES)])
 
     def solve_ikd(self):
         """Key ``i``: solve IKD for the shot's constraints with the current parameters; show the IKD state.

@@ -231,11 +231,6 @@ class HatViewer(PlotterWindow):
         return r
 
     # --- callbacks (sliders, keys, buttons) --------------------------------------------------------------------
-    def set_frame(self, value) -> None:
-        """Timeline slider: show frame ``round(value)`` (clamped to the animation)."""
-        self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
-        self.update()
-
     def set_window(self, value) -> None:
         """Window slider: KD window δ [s] (rounded up to whole steps by ``simulate_kd``)."""
         window_steps(float(value), self.step_s)

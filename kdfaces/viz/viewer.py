@@ -74,6 +74,11 @@ class PlotterWindow:
     ``plotter`` (pyvista), status ``_text`` actor, ``frame``/``times``/``set_frame`` and ``playing`` flag: frame
     steps, playback, the status redraw, a screenshot, the window loop."""
 
+    def set_frame(self, value) -> None:
+        """Timeline slider: show frame ``round(value)``, clamped to the frames."""
+        self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
+        self.update()
+
     def set_mode(self, mode: str) -> None:
         """Display ``"kinematic"``, ``"kd"`` or ``"ikd"`` (IKD shows KD until a solve exists)."""
         if mode not in MODES:
@@ -333,11 +338,6 @@ class ShotViewer(PlotterWindow):
         return float(self.adaptive_windows(mode).window_s[k])
 
     # --- callbacks (sliders, keys, buttons) --------------------------------------------------------------------
-    def set_frame(self, value) -> None:
-        """Timeline slider: show frame ``round(value)`` (clamped to the shot)."""
-        self.frame = int(np.clip(round(float(value)), 0, len(self.times) - 1))
-        self.update()
-
     def set_settle_time(self, value) -> None:
         """Settle-time slider [s]: the loosest vertex's settle time; a per-vertex map is scaled with it."""
         v = float(value)

@@ -42,6 +42,18 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _UNIFORM_RTOL = 1e-6  # relative tolerance on frame spacing for PC2 (uniform samples only)
 
 
+class _BlockWriter:
+    """What the cache writers share: ``path``, frame ``times``, ``done`` frames written, and a ``with`` block that
+    publishes the file only when every frame was written (``_close(exc_type)`` publishes or discards)."""
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None and self.done != len(self.times):
+            self._close(KDInputError)
+            raise KDInputError(f"{self.path}: {self.done} frames of positions for {len(self.times)} frame times")
+        self._close(exc_type)
+        return False
+
+
 def _checked_block(path, block, done: int, num_vertices: int, num_times: int) -> np.ndarray:
     """``block`` as the next (k, N, 3) frames [m] of a cache at ``path`` that has ``done`` of its ``num_times``
     frames: one :class:`KDInputError` naming the file and the frames for a wrong shape, too many frames, a value
@@ -164,7 +176,7 @@ def write_usd_chunks(path, chunks, times, faces, *, num_vertices: int, fps: floa
     return w.path
 
 
-class USDWriter:
+class USDWriter(_BlockWriter):
     """A USD point cache written a block of frames at a time: ``with USDWriter(path, times, faces,
     num_vertices=N) as w: w.write(block)`` for consecutive (k, N, 3) blocks of positions [m] in frame order (the
     arguments of :func:`write_usd_chunks`). The file appears under ``path`` when the ``with`` block ends without an
@@ -226,12 +238,6 @@ class USDWriter:
             if atomic is not None:
                 atomic.__exit__(exc_type, None, None)
 
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None and self.done != len(self.times):
-            self._close(KDInputError)
-            raise KDInputError(f"{self.path}: {self.done} frames of positions for {len(self.times)} frame times")
-        self._close(exc_type)
-        return False
 
 
 def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, polygons, uvs, unit_m):
@@ -393,7 +399,7 @@ def write_pc2_chunks(path, chunks, times, *, num_vertices: int, fps: float | Non
     return w.path
 
 
-class PC2Writer:
+class PC2Writer(_BlockWriter):
     """A PC2 file written a block of frames at a time: ``with PC2Writer(path, times, num_vertices=N) as w:
     w.write(block)`` for consecutive (k, N, 3) blocks of positions [m] in frame order. The file appears under
     ``path`` when the ``with`` block ends without an exception and every frame of ``times`` (F,) [s] was written;
@@ -463,12 +469,6 @@ class PC2Writer:
         if atomic is not None:
             atomic.__exit__(exc_type, None, None)
 
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None and self.done != len(self.times):
-            self._close(KDInputError)
-            raise KDInputError(f"{self.path}: {self.done} frames of positions for {len(self.times)} frame times")
-        self._close(exc_type)
-        return False
 
 
 def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m: float = 1.0,

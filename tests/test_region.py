@@ -413,3 +413,29 @@ def test_a_trajectory_without_a_subset_path_still_drives_a_region(bodies, short_
     inside = model.region_mask
     np.testing.assert_array_equal(x0[:, inside], xk[:, inside].astype(np.float32))  # the state holds float32
     np.testing.assert_array_equal(x0[:, ~inside], xk[:, ~inside])
+
+
+def test_a_bodys_work_estimate_counts_its_face_for_the_simulation(head, bodies):
+    """estimate_work counts the simulated vertices (the moving region) for the KD and solve steps, and N for the
+    outputs: a body's simulation estimate is its face's, its output memory is the body's."""
+    import tomllib
+    from pathlib import Path
+
+    from kdfaces.shots.shotfile import estimate_work, parse_shot
+
+    ref = Path(__file__).resolve().parent / "reference" / "shot.toml"
+    data = tomllib.loads(ref.read_text())
+    face = estimate_work(parse_shot(data, ref, rig=head))
+    body = bodies[60]
+    est = estimate_work(parse_shot(data, ref, rig=body))
+    assert face.simulated == face.vertices == head.num_vertices
+    assert est.simulated == FaceModel.from_rig(body, **SETTLE).num_simulated == head.num_vertices
+    assert est.vertices == body.num_vertices > head.num_vertices
+    assert (est.kd_steps, est.solve_steps, est.full_steps) == (face.kd_steps, face.solve_steps, face.full_steps)
+    # the outputs (every vertex) and the window scan (it samples every vertex) scale with N
+    assert est.memory_bytes * head.num_vertices == face.memory_bytes * body.num_vertices
+    assert est.scan_steps * head.num_vertices == pytest.approx(face.scan_steps * body.num_vertices, rel=1e-12)
+    for window in ("adaptive", 0.2):
+        a, b = estimate_work(parse_shot(data, ref, rig=head), window_s=window), \
+            estimate_work(parse_shot(data, ref, rig=body), window_s=window)
+        assert (a.kd_steps, a.solve_steps, a.full_steps) == (b.kd_steps, b.solve_steps, b.full_steps)

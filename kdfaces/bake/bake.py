@@ -274,8 +274,9 @@ def _solve(shot, path: Path, text: str, table: dict, *, window_s, max_memory_byt
             raise KDNumericalError("IKD: the solved trajectory is not the shot's trajectory plus one correction")
         correction = final.correction
     # the trajectory bake a worker keeps between chunks: the rows of about two chunks' windows, not the take's, so
-    # a worker's memory does not grow with the take (rows are x_K, ẋ_K at grid times: re-baking gives the same)
-    row_bytes = 4 * 3 * 4 * model.num_vertices
+    # a worker's memory does not grow with the take (rows are x_K, ẋ_K at grid times: re-baking gives the same);
+    # a row holds the simulated vertices only (the model's region, FaceSystem.memory_bytes), not every vertex
+    row_bytes = 4 * 3 * 4 * model.num_simulated
     max_bake = 2 * (k + n + 1) * row_bytes if n else None
     payload = payload_type(shot_text=text, shot_path=str(path), inputs=fingerprints[0], code=fingerprints[1],
                            window_s=window, step_s=h, correction=correction, frames=len(shot.animation.frame_times),

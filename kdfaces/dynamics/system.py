@@ -71,7 +71,7 @@ class TrajectoryBake:
 
     def __init__(self, trajectory, h: float, device, *, j_lo: int = 0, member_times: np.ndarray | None = None,
                  member_grid: np.ndarray | None = None, origin: float | None = None,
-                 vertices: np.ndarray | None = None, source=None):
+                 vertices: np.ndarray | None = None, source=None, capacity: int = 0):
         self.trajectory, self.h, self.device = trajectory, float(h), device
         self.vertices = vertices
         self.source = restrict_trajectory(trajectory, vertices) if source is None else source
@@ -86,10 +86,13 @@ class TrajectoryBake:
         self.stride = 1 if members is None else len(members)
         self.num_rows = 0
         n = trajectory.num_vertices if vertices is None else len(vertices)
-        self._x = np.zeros((0, n, 3), np.float32)  # host copies with spare capacity; rows [0, num_rows) are valid
-        self._v = np.zeros_like(self._x)
-        self.xk = wp.zeros((0, n), dtype=wp.vec3, device=device)
-        self.vk = wp.zeros((0, n), dtype=wp.vec3, device=device)
+        # host copies with spare capacity (``capacity`` rows allocated up front, uninitialised: a bake that knows its
+        # span never reallocates); rows [0, num_rows) are valid, and no kernel reads past them (ensure)
+        cap = max(0, int(capacity))
+        self._x = np.empty((cap, n, 3), np.float32)
+        self._v = np.empty_like(self._x)
+        self.xk = wp.empty((cap, n), dtype=wp.vec3, device=device)
+        self.vk = wp.empty((cap, n), dtype=wp.vec3, device=device)
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
         self.radius = self.extent = self._vmax = 0.0
 
@@ -148,9 +151,10 @@ class TrajectoryBake:
         r0, r1 = self.num_rows, self.num_rows + len(x)
         if r1 > len(self._x):  # grow geometrically, so appending a row at a time stays O(rows appended)
             cap = max(r1, 2 * len(self._x))
-            self._x = np.concatenate([self._x[:r0], np.zeros((cap - r0, *x.shape[1:]), np.float32)])
-            self._v = np.concatenate([self._v[:r0], np.zeros((cap - r0, *x.shape[1:]), np.float32)])
-            xk, vk = (wp.zeros((cap, x.shape[1]), dtype=wp.vec3, device=self.device) for _ in range(2))
+            xh, vh = np.empty((cap, *x.shape[1:]), np.float32), np.empty((cap, *x.shape[1:]), np.float32)
+            xh[:r0], vh[:r0] = self._x[:r0], self._v[:r0]
+            self._x, self._v = xh, vh
+            xk, vk = (wp.empty((cap, x.shape[1]), dtype=wp.vec3, device=self.device) for _ in range(2))
             if r0:
                 wp.copy(xk, self.xk, count=r0 * x.shape[1])
                 wp.copy(vk, self.vk, count=r0 * x.shape[1])
@@ -159,7 +163,8 @@ class TrajectoryBake:
         self._v[r0:r1] = v
         flat = np.ascontiguousarray(self._x[r0:r1].reshape(-1, 3).T)  # (3, rows·N): reduced along rows, ~15× faster
         lo, hi = flat.min(axis=1), flat.max(axis=1)
-        vmax = float(np.abs(self._v[r0:r1]).max()) if r1 > r0 else 0.0
+        vh = self._v[r0:r1]  # max |v| as max(max v, −min v): no |v| temporary (np.maximum propagates NaN)
+        vmax = float(np.maximum(vh.max(), -vh.min())) if r1 > r0 else 0.0
         if not (np.isfinite(lo).all() and np.isfinite(hi).all() and np.isfinite(vmax)):  # NaN and ±inf propagate
             bad = ~(np.isfinite(x).all(axis=(1, 2)) & np.isfinite(v).all(axis=(1, 2)))
             if bad.any():
@@ -367,11 +372,19 @@ class FaceSystem:
                                                            origin=origin, vertices=self._region,
                                                            source=self._view(trajectory))
                 return sparse, np.searchsorted(sparse.member_grid, j).astype(np.int32)
-            # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed)
+            # a new grid, or one that would outgrow the budget: start afresh at these windows (the old one is freed),
+            # with room for the budget's rows (a stream of chunks restarts every few and never grows a bake), the
+            # rows it shares with the old bake copied from there (the same grid times: the same x_K bits)
             if not same_grid(self._sparse):
                 self._sparse = None
-            self._bake = old = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
-                                              vertices=self._region, source=self._view(trajectory))
+            keep = same_grid(old) and old.j_lo <= lo < old.j_lo + old.num_rows
+            cap = max(hi - lo, min(self.max_bake_bytes // row_bytes, 4 * (hi - lo)))
+            self._bake = new = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
+                                              vertices=self._region, source=self._view(trajectory), capacity=cap)
+            if keep:
+                a = lo - old.j_lo
+                new._append(old.xk_np[a:a + cap], old.vk_np[a:a + cap])
+            old = new
         elif lo < old.j_lo:
             self._bake = old = old.prepended(lo)
         return old, (j - old.j_lo).astype(np.int32)
@@ -513,18 +526,20 @@ class FaceSystem:
         exactly; the state holds rigid ones in float32 and outside ones not at all), evaluated once here (with a
         region, for those vertices only)."""
         self._check(state)
-        x = np.concatenate([ch.x.numpy() for ch in state.chunks]).astype(np.float64)
+        x = np.concatenate([ch.x.numpy() for ch in state.chunks])  # float32 (B, R, 3)
         rigid = self._rigid_sim
-        if self._region is not None:
+        if self._region is None:
+            x = x.astype(np.float64)
+        else:
             traj = state.bake.trajectory if state.bake is not None else state.trajectory
             t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
             full = np.empty((len(x), self.model.num_vertices, 3))
+            full[:, self._region] = x  # widened exactly; the region's rigid rows are overwritten next
             rows = self._kinematic_rows
             if len(rows):
                 view = self._view(traj, observe=True)
                 for i in range(0, len(t), 32):
                     full[i:i + 32, rows] = scan_trajectory(view, t[i:i + 32], 0)[0]
-            full[:, self._region[~rigid]] = x[:, ~rigid]
             return full
         if rigid.any() and state.bake is not None:
             t = state.start_times + state.steps * state.bake.h

@@ -170,9 +170,12 @@ class _RigRows:
 
 
 def _cached_evaluate(owner, times, order: int, chunk_fn, scan_fn):
-    """``evaluate`` through ``owner``'s sample cache (``owner._cache``: time in ns → stacked (3, *state) sample,
-    ``owner._cache_max`` samples, ``owner.chunk`` times per ``chunk_fn`` call); more distinct times than the cache
-    holds go to ``scan_fn``."""
+    """``evaluate`` through ``owner``'s sample cache (``owner._cache``: time in ns → the tuple (x, ẋ[, ẍ]) of that
+    time's sample, each array ``state_shape``, float64, as many derivative orders as the call that computed it asked
+    for; ``owner._cache_max`` samples, ``owner.chunk`` times per ``chunk_fn(t, order)`` call); more distinct times
+    than the cache holds go to ``scan_fn``. Only the orders asked for are computed and copied (a bake asks for
+    x_K, ẋ_K; a cached sample with fewer orders than asked is computed again); the values of an order do not depend
+    on how many are computed (:meth:`KinematicTrajectory._evaluate_chunk`), so a cached sample is the same bits."""
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     check_finite(t, "trajectory times")
     if order not in (0, 1, 2):
@@ -186,22 +189,28 @@ def _cached_evaluate(owner, times, order: int, chunk_fn, scan_fn):
     missing = []
     for k, i in zip(uniq.tolist(), first_index.tolist()):
         sample = cache.get(k)
-        if sample is None:
+        if sample is None or len(sample) <= order:
             missing.append((k, i))  # times within 1 ns share a sample, evaluated at the first one asked for
         else:
             cache.move_to_end(k)
             found[k] = sample
     for c in range(0, len(missing), owner.chunk):
         part = missing[c:c + owner.chunk]
-        x, v, a = chunk_fn(t[[i for _, i in part]])
+        arrays = chunk_fn(t[[i for _, i in part]], order)[:order + 1]
         for j, (k, _) in enumerate(part):
-            found[k] = np.stack([x[j], v[j], a[j]])
+            found[k] = tuple(a[j].copy() for a in arrays)  # own copies: the cache frees samples one by one
     for k, _ in missing:  # cache after the call has what it needs, so nothing it uses is evicted early
         cache[k] = found[k]
+        cache.move_to_end(k)
         if len(cache) > owner._cache_max:
             cache.popitem(last=False)
-    samples = np.stack([found[k] for k in uniq.tolist()], axis=1)[:, inverse]
-    return tuple(samples[o] for o in range(order + 1))
+    samples = [found[k] for k in uniq.tolist()]
+    identity = len(inverse) == len(uniq) and bool((np.diff(inverse.ravel()) == 1).all())  # sorted distinct times
+    out = []
+    for o in range(order + 1):
+        a = np.stack([s[o] for s in samples])
+        out.append(a if identity else a[inverse.ravel()])
+    return tuple(out)
 
 
 def _chunked_scan(chunk: int, times, order: int, chunk_fn):

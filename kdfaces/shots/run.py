@@ -16,6 +16,7 @@ from ..deprecation import renamed_kwargs
 from ..errors import KDInputError, check_count
 from ..ikd.solver import IKDResult, independent_check, solve_ikd
 from ..kd import simulate_full, simulate_kd, window_steps
+from ..motion.trajectory import scan_trajectory
 from ..resources import memory_budget_bytes, progress_bar, single_threaded_blas
 from ..window import adaptive_windows
 from .shotfile import Shot, estimate_work, load_shot
@@ -118,8 +119,8 @@ class ShotRun:
             return self.kept[kind][lo:hi]
         t = self.times[lo:hi]
         base, corrected = self._stream_trajectories()
-        if kind == "kinematic":
-            return base.positions(t)
+        if kind == "kinematic":  # each frame once (a pass): evaluated without the sample cache, order 0 only
+            return scan_trajectory(base, t, 0)[0]
         traj, windows = (base, self.kd_windows_s) if kind == "kd" else (corrected, self.ikd_windows_s)
         w = self.window_s if windows is None else windows[lo:hi]
         return simulate_kd(self.system, traj, t, w, step_s=self.step_s, max_memory_bytes=self.max_memory_bytes)
@@ -296,8 +297,9 @@ def _stream(run: ShotRun, sinks, keep: bool, progress: bool) -> None:
     for w in (run.kd_windows_s, run.ikd_windows_s):
         if w is not None:
             steps = max(steps, int(np.ceil(w.max() / run.step_s - 1e-9)))
-    if hasattr(run.system, "max_bake_bytes"):
-        run.system.max_bake_bytes = min(run.system.max_bake_bytes, 3 * (run.chunk_frames + steps + 1) * 48 * n)
+    if hasattr(run.system, "max_bake_bytes"):  # a row: x_K, ẋ_K of the simulated vertices, device and host
+        r = int(getattr(run.system, "num_simulated", n))
+        run.system.max_bake_bytes = min(run.system.max_bake_bytes, 3 * (run.chunk_frames + steps + 1) * 48 * r)
     kd_s = 0.0
     kept = {}
     for kind in kinds:

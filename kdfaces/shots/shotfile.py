@@ -242,7 +242,10 @@ class WorkEstimate:
     """What simulating a shot will cost, from :func:`estimate_work` (nothing is sampled or simulated to know it).
 
     Attributes:
-        frames: F, the frames of the shot; vertices: N; step_s: the simulation step h [s].
+        frames: F, the frames of the shot; vertices: N (what the outputs hold); step_s: the simulation step h [s].
+        simulated: R, the vertices a step advances (the face model's moving region,
+            :func:`~kdfaces.rig.region.moving_region`; N without one): the KD, solve and full-simulation steps count
+            R, the window scan (it samples every vertex) and the memory of the output trajectories N.
         window_s: the KD window asked for: seconds, ``"auto"`` or ``"adaptive"``.
         window_steps: n, simulation steps per KD state (``ceil(δ/h)``). Before the automatic window is known it is
             its lower bound 1 (the automatic window is never shorter than a step; 0 for adaptive windows, whose
@@ -271,6 +274,7 @@ class WorkEstimate:
     full_steps: float
     scan_steps: float
     memory_bytes: int
+    simulated: int | None = None
 
     @property
     def vertex_steps(self) -> float:
@@ -287,7 +291,8 @@ class WorkEstimate:
         if max_steps is not None and self.vertex_steps > max_steps:
             n = f"{'at least ' if self.lower_bound else ''}{self.window_steps:,} step"
             n += "s" if self.window_steps != 1 else ""
-            parts = [f"{self.frames:,} frames x {n} per KD state x {self.vertices:,} vertices"
+            r = self.vertices if self.simulated is None else self.simulated
+            parts = [f"{self.frames:,} frames x {n} per KD state x {r:,} simulated vertices"
                      + (f" x {self.kd_passes} (KD and IKD)" if self.kd_passes > 1 else "")]
             if self.scan_steps:
                 parts.append(f"a window scan of {self.scan_samples:,} times")
@@ -323,6 +328,7 @@ def estimate_work(shot: Shot, *, window_s=None, solve: bool = True, window_auto_
     a = shot.animation
     h = shot.step_s
     frames, vertices = a.num_frames, shot.rig.num_vertices
+    sim = _simulated_vertices(shot.rig)  # R: what a step costs (outputs and the scan stay N)
     window = shot.dynamics["window_s"] if window_s is None else window_s
     samples = grid_size(a, h)
     lower = False
@@ -340,17 +346,29 @@ def estimate_work(shot: Shot, *, window_s=None, solve: bool = True, window_auto_
     tables = shot.constraint_tables if solve else []
     states = len(tables) + sum(1 for c in tables if c["kind"] == "velocity")  # velocity: x(t) and x(t − h)
     passes = 2 if tables else 1
-    kd = float(passes) * frames * n * vertices
+    kd = float(passes) * frames * n * sim
     it = int(shot.solver["max_iterations"]) if tables else 0
-    solve_steps = float(it + 1) * states * max(n, 1) * vertices  # sweeps and the independent check
+    solve_steps = float(it + 1) * states * max(n, 1) * sim  # sweeps and the independent check
     adaptive = window == "adaptive"
-    full = float(passes) * samples * vertices if adaptive else 0.0
+    full = float(passes) * samples * sim if adaptive else 0.0
     scans = (1 if scan or window == "auto" else 0) + (passes if adaptive else 0)
     scan_steps = float(scans) * samples * vertices * defaults.SCAN_COST
     memory = (4 + adaptive) * frames * vertices * 3 * 8
     return WorkEstimate(path=shot.path, frames=frames, vertices=vertices, step_s=h, window_s=window, window_steps=n,
                         lower_bound=lower, kd_passes=passes, scan_samples=samples if scans else 0, kd_steps=kd,
-                        solve_steps=solve_steps, full_steps=full, scan_steps=scan_steps, memory_bytes=int(memory))
+                        solve_steps=solve_steps, full_steps=full, scan_steps=scan_steps, memory_bytes=int(memory),
+                        simulated=sim)
+
+
+def _simulated_vertices(rig) -> int:
+    """R, the vertices the shot's face model simulates: its moving region under the default
+    :data:`~kdfaces.defaults.FACE_REGION` ("auto", as :meth:`~kdfaces.dynamics.FaceModel.from_rig` chooses it; a
+    rig with no shapes and no skeleton simulates every vertex), N with ``None``."""
+    from ..rig.region import moving_region
+
+    if defaults.FACE_REGION is None or not (rig.num_shapes or rig.skeleton is not None):
+        return int(rig.num_vertices)
+    return len(moving_region(rig))
 
 
 def settle_time(dynamics: dict, rig, *, where: str = "dynamics", channel_map: dict | None = None):

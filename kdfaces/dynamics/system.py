@@ -95,6 +95,7 @@ class TrajectoryBake:
         self.vk = wp.empty((cap, n), dtype=wp.vec3, device=device)
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
         self.radius = self.extent = self._vmax = 0.0
+        self._readers: list[weakref.ref] = []  # the states that read this bake: while one lives, rows stay put
 
     @property
     def xk_np(self) -> np.ndarray:
@@ -178,6 +179,33 @@ class TrajectoryBake:
         self.radius = float(np.abs(np.concatenate([self._lo, self._hi])).max())
         # how far the trajectory reaches: its extent, or where its fastest vertex gets in a second
         self.extent = max(float((self._hi - self._lo).max()), self._vmax * 1.0)
+
+    def add_reader(self, state) -> None:
+        """Note that ``state`` reads this bake (held weakly: a state that is gone no longer counts)."""
+        self._readers = [r for r in self._readers if r() is not None] + [weakref.ref(state)]
+
+    def read(self) -> bool:
+        """Whether a state that reads this bake is still alive."""
+        self._readers = [r for r in self._readers if r() is not None]
+        return bool(self._readers)
+
+    def slide(self, j_lo: int, capacity: int) -> bool:
+        """Restart this shared-grid bake at grid index ``j_lo`` (>= ``self.j_lo``) in its own buffers, when no state
+        reads it and they hold ``capacity`` rows: the rows from ``j_lo`` on move to the front (the grid times they
+        hold stay theirs, so their x_K bits are what a new bake would evaluate), the rest are dropped, and the
+        trajectory's extent is measured on the kept rows again, as a new bake's would be. A stream of chunks then
+        reuses one buffer for the whole take. False (nothing changed) when a state still reads it, or it is too
+        small."""
+        if self.read() or self.member_times is not None or self.member_grid is not None or len(self._x) < capacity:
+            return False
+        a = min(max(0, int(j_lo) - self.j_lo), self.num_rows)
+        kept_x, kept_v = self._x[a:self.num_rows].copy(), self._v[a:self.num_rows].copy()
+        self.j_lo, self.num_rows = int(j_lo), 0
+        self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self.radius = self.extent = self._vmax = 0.0
+        if len(kept_x):
+            self._append(kept_x, kept_v)
+        return True
 
     def ensure(self, rows: np.ndarray, steps: int) -> None:
         """Bake every row that members at ``rows`` read during steps 0..``steps``."""
@@ -379,6 +407,10 @@ class FaceSystem:
                 self._sparse = None
             keep = same_grid(old) and old.j_lo <= lo < old.j_lo + old.num_rows
             cap = max(hi - lo, min(self.max_bake_bytes // row_bytes, 4 * (hi - lo)))
+            if keep and old.slide(lo, cap):  # no state reads it any more: its own buffers, no new allocation
+                if self._pending is not None and self._pending[2][0] is old:
+                    self._pending = None  # its rows moved
+                return old, (j - old.j_lo).astype(np.int32)
             self._bake = new = TrajectoryBake(trajectory, h, self.device, j_lo=lo, origin=origin,
                                               vertices=self._region, source=self._view(trajectory), capacity=cap)
             if keep:
@@ -405,9 +437,12 @@ class FaceSystem:
                          rot=wp.clone(ch.rot), quat=wp.clone(ch.quat), cen=wp.clone(ch.cen), cen0=wp.clone(ch.cen0),
                          partition=ch.partition)
                   for ch in state.chunks]
-        return FaceState(start_times=state.start_times.copy(), bake=state.bake,
+        copy = FaceState(start_times=state.start_times.copy(), bake=state.bake,
                          rows=None if state.rows is None else state.rows.copy(), chunks=chunks, steps=state.steps,
                          tasks=list(state.tasks), trajectory=state.trajectory)
+        if copy.bake is not None:
+            copy.bake.add_reader(copy)
+        return copy
 
     def initial_state(self, trajectory, times) -> FaceState:
         """States at ``times`` (B,) [s] on the kinematic trajectory: x = x_K(t), v = ẋ_K(t)."""
@@ -431,6 +466,8 @@ class FaceSystem:
         slots = partition.slots if fused else self._clusters.num_clusters
         d = self.device
         state = FaceState(start_times=t0, bake=bake, rows=rows, trajectory=trajectory)
+        if bake is not None:
+            bake.add_reader(state)
         for p in np.array_split(np.arange(B), min(threads if parts == 1 else 1, B)):
             x = wp.array(x0[p], dtype=wp.vec3, device=d)
             state.chunks.append(_Chunk(
@@ -453,6 +490,7 @@ class FaceSystem:
         h = step_s
         if state.bake is None:
             state.bake, state.rows = self._bake_for(trajectory, state.start_times, float(h))
+            state.bake.add_reader(state)
             for ch in state.chunks:
                 ch.rows = wp.array(state.rows[ch.members], dtype=wp.int32, device=self.device)
         bake = state.bake
@@ -514,6 +552,7 @@ class FaceSystem:
             tasks.append(task)
         self._run(state, tasks)
         state.bake, state.rows, state.start_times, state.steps = bake, None, t + h, 0  # off the grid from here
+        bake.add_reader(state)
         self._check(state)
 
     def observe_kinematic(self, trajectory, times) -> np.ndarray:

@@ -28,7 +28,7 @@ from scipy.special import lambertw
 from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, default_step
 from .deprecation import renamed_attribute, renamed_kwargs
 from .errors import KDInputError
-from .motion.trajectory import scan_trajectory
+from .motion.trajectory import restrict_trajectory, scan_trajectory
 
 
 def _region(model) -> np.ndarray | None:
@@ -182,10 +182,9 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     check_scan(grid_size(trajectory, h) if times is None else np.size(times), n_vertices, max_steps)
     t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
     acc_max = 0.0
+    source = restrict_trajectory(trajectory, region)  # §5.2's ẍ_max over the simulated (face) vertices only
     for i in range(0, len(t), 32):
-        acc = scan_trajectory(trajectory, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
-        if region is not None:
-            acc = acc[:, region]  # §5.2's ẍ_max over the simulated (face) vertices only
+        acc = scan_trajectory(source, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
         acc_max = max(acc_max, float(np.sqrt((acc**2).sum(axis=-1)).max()))
     v0 = acc_max * h
     kp, kd = model.kp, model.kd
@@ -352,13 +351,16 @@ def _face_kicks(model, trajectory, origin: float, h: float, J: int, vertex_bin: 
     bins_sorted = vertex_bin[free][order]
     starts = np.flatnonzero(np.r_[True, np.diff(bins_sorted) != 0])
     idx = np.flatnonzero(free)[order]  # free vertices grouped by bin
+    region = _region(model)  # every free vertex lies in it: evaluate x_K on the region only
+    source = restrict_trajectory(trajectory, region)
+    rows = idx if region is None else np.searchsorted(region, idx)
     kd = np.broadcast_to(model.kd, free.shape)[idx]
     absolute = getattr(model, "damping_mode", "relative") == "absolute"
     Uv, Ud = np.zeros((B, J)), np.zeros((B, J))
     prev = None  # the last sample of the previous chunk (each sample is evaluated once)
     for s0 in range(0, J + 1, _SCAN_CHUNK):
-        x, v = scan_trajectory(trajectory, origin + np.arange(s0, min(J + 1, s0 + _SCAN_CHUNK)) * h, 1)
-        x, v = x[:, idx], v[:, idx]
+        x, v = scan_trajectory(source, origin + np.arange(s0, min(J + 1, s0 + _SCAN_CHUNK)) * h, 1)
+        x, v = x[:, rows], v[:, rows]
         if prev is not None:
             x, v = np.concatenate([prev[0], x]), np.concatenate([prev[1], v])
         j0 = s0 - (prev is not None)

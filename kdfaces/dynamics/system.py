@@ -559,6 +559,19 @@ class FaceSystem:
         """Vertex positions of the kinematic trajectory at ``times`` (T,) [s] → (T, N, 3) [m], float64."""
         return np.asarray(trajectory.evaluate(np.atleast_1d(np.asarray(times, dtype=np.float64)), order=0)[0])
 
+    def simulated_kinematic(self, trajectory, times):
+        """The vertices :meth:`observe` takes from the state, and x_K there: ``(rows, x)`` with ``rows`` the region's
+        non-rigid vertices (S,) (indices into N, int64) and ``x`` x_K at ``times`` (T,) [s] on those rows, (T, S, 3)
+        [m], float64, a one-off pass over the region's rows (no sample cache: the values are those of the full
+        trajectory's scan at ``times``, which groups the times the same way). Every other vertex observe()
+        returns is x_K itself (outside the region and rigid, paper §4.5), so ‖x_KD − x_K‖ is zero there and a
+        deviation needs these rows only. None without a region (observe widens the state at every vertex)."""
+        if self._region is None:
+            return None
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        free = ~self._rigid_sim
+        return self._region[free], scan_trajectory(self._view(trajectory), t, 0)[0][:, free]
+
     def observe(self, state: FaceState) -> np.ndarray:
         """Vertex positions of every member [m], shape (B, N, 3), float64. Rigid vertices, and with a region every
         vertex outside it, are the trajectory's own float64 positions at each member's time (they follow it

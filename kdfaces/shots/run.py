@@ -312,14 +312,27 @@ def _stream(run: ShotRun, sinks, keep: bool, progress: bool) -> None:
             chunks = {"kinematic": [], kind: []}
             for lo in range(0, f, run.chunk_frames):
                 hi = min(lo + run.chunk_frames, f)
-                kinematic = run.states("kinematic", lo, hi)
+                # KD with a region: x_K of the simulated vertices only (scanned at the frames, as before);
+                # every other vertex of the state is x_K itself, its deviation 0 (FaceSystem.observe).
+                # (IKD's are x_K + f there, measured against x_K: every vertex, as before.)
+                region = None if keep or kind != "kd" else getattr(run.system, "simulated_kinematic", None)
+                kinematic = run.states("kinematic", lo, hi) if region is None else None
                 t0 = _time.perf_counter()
                 x = run.states(kind, lo, hi)
                 if kind == "kd":
                     kd_s += _time.perf_counter() - t0
-                d = np.linalg.norm(x - kinematic, axis=-1)
-                vertex = np.maximum(vertex, d.max(axis=0))
-                frame[lo:hi] = d.max(axis=1)
+                sim = None if region is None else region(run._stream_trajectories()[0], run.times[lo:hi])
+                if sim is None or len(sim[0]) == 0:
+                    if kinematic is None:
+                        kinematic = run.states("kinematic", lo, hi)
+                    d = np.linalg.norm(x - kinematic, axis=-1)
+                    vertex = np.maximum(vertex, d.max(axis=0))
+                    frame[lo:hi] = d.max(axis=1)
+                else:
+                    rows, xk = sim
+                    d = np.linalg.norm(x[:, rows] - xk, axis=-1)
+                    vertex[rows] = np.maximum(vertex[rows], d.max(axis=0))
+                    frame[lo:hi] = d.max(axis=1)
                 if full is not None:
                     error = max(error, float(np.linalg.norm(x - full[lo:hi], axis=-1).max()))
                 if kind == kinds[-1]:

@@ -305,7 +305,8 @@ def _how_to_map(rig, unmapped, used=()) -> str:
     from ..rig.names import closest_shapes
 
     channel = unmapped[0] if unmapped else "jawOpen"
-    free = [s for i, s in enumerate(rig.shape_names) if i not in set(used)] or list(rig.shape_names)
+    driven = set(used)
+    free = [s for i, s in enumerate(rig.shape_names) if i not in driven] or list(rig.shape_names)
     close = closest_shapes(channel, free, n=1)
     example = close[0] if close else (free[0] if free else "<shape>")
     return (f"map them in the shot's [animation.map], channel = the rig's shape(s) (e.g. {channel} = {example!r}), "

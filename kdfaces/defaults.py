@@ -18,7 +18,7 @@ __all__ = [
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
     "TET_EDGE_LENGTH_FAC", "TET_ENVELOPE_FAC", "TET_COARSEN", "YOUNGS_PA", "POISSON_RATIO", "DENSITY_KG_M3",
     "MATERIAL_MODEL", "NEWTON_TOL_M", "CONTACT_DHAT_FAC", "CONTACT_GRID_NODES", "CONTACT_FRICTION_EPS_V_MPS",
-    "ATTACH_DISTANCE_M", "OMEGA_MAX_RADPS", "V_MAX_MPS",
+    "ATTACH_DISTANCE_M", "HAT_COLLIDERS", "OMEGA_MAX_RADPS", "V_MAX_MPS",
     "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
     "WINDOW_MODES", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
     "max_steps_argument",
@@ -128,6 +128,9 @@ CONTACT_GRID_NODES = 2 ** 18
 CONTACT_FRICTION_EPS_V_MPS = 1e-3
 #: FEM nodes within this distance [m] of the head surface follow the head joint.
 ATTACH_DISTANCE_M = 0.02
+#: Whether the hat's scenes (``kdfem demo``, ``door``, ``follow``) give the hat the head as a collider (and the
+#: door's lintel in ``kdfem door``; kdfem.fem.contact); ``--no-colliders`` turns them off.
+HAT_COLLIDERS = True
 #: The worst-case jump of the bone's angular [rad/s] and linear [m/s] speed the modal window is sized for (eq. 30).
 OMEGA_MAX_RADPS = 4.0
 V_MAX_MPS = 2.0

@@ -20,7 +20,7 @@ __all__ = [
     "MATERIAL_MODEL", "NEWTON_TOL_M", "CONTACT_DHAT_FAC", "CONTACT_GRID_NODES", "CONTACT_FRICTION_EPS_V_MPS",
     "ATTACH_DISTANCE_M", "HAT_COLLIDERS", "OMEGA_MAX_RADPS", "V_MAX_MPS",
     "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
-    "WINDOW_MODES", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
+    "WINDOW_MODES", "FIXED_WINDOW_S", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
     "max_steps_argument",
 ]
 
@@ -59,6 +59,9 @@ ROTATION_ITERATIONS = 2
 WINDOW_S = "auto"
 #: The window values that are words, not seconds.
 WINDOW_MODES = ("auto", "adaptive")
+#: The seconds a Blender object's KD window starts at when its window mode is switched to "seconds"
+#: (kdfaces/blender: the panel's field; "auto" stays the default mode, :data:`WINDOW_S`).
+FIXED_WINDOW_S = 0.5
 #: Simulation step [s]; None = the animation's frame interval.
 STEP_S = None
 #: ε as a fraction of the object's diameter (§5.3 uses 0.1 %).

@@ -1,0 +1,517 @@
+"""A Blender scene read into kdfaces: a mesh object with shape keys and their animation → rig, trajectory, model.
+
+Imported only inside Blender (it takes ``bpy`` objects; it imports ``bpy`` itself nowhere at module level). Every
+array crosses with ``foreach_get``/``foreach_set``, never a Python loop over vertices.
+
+Conventions:
+
+- **Axes and units.** Blender is z up; kdfaces is y up, face looking +z. A mesh-local Blender point (x, y, z) in
+  scene units is the kdfaces point (x, z, −y) · ``scale_length`` [m] (:func:`to_kd`, :func:`from_kd`), the same map
+  the toolkit's glTF/FBX exports use the other way. Everything the library sees is in the object's local space.
+- **Time.** Scene frame f is shot time t = (f − ``frame_start``) / fps [s], fps = ``render.fps / fps_base``; the
+  shot spans the scene's frame range (shot frame k = scene frame ``frame_start + k``).
+- **Rig.** The reference key ("Basis") is the neutral; every other shape key except the KD key (:data:`KD_KEY`) is
+  a blend shape, its delta taken against its own ``relative_key`` as Blender does. Triangles from
+  ``loop_triangles``, polygons from ``polygons``/``loops``.
+- **Animation.** Each shape key's weight is its ``value`` fcurve (``key_blocks["NAME"].value`` in the shape keys'
+  action) evaluated at every frame of the range, or its constant ``value`` (0 when muted), into a catmull-rom
+  :class:`~kdfaces.motion.KeyframeCurve` through those frames: at every frame it is exactly Blender's weight, and
+  the KD steps (one per frame, h = 1/fps) read x_K only at frames.
+- **Head motion.** The KD is computed in the object's local space: the object's own transform moves the result
+  rigidly. An armature (``obj.find_armature()``) must have a head bone (:func:`kdfaces.rig.skeleton.joint_role`);
+  one without is a :class:`~kdfaces.errors.KDInputError`. (Reading the armature's head-chain pose animation into
+  joint drives is not done yet: the face's secondary motion comes from its shape-key animation.)
+
+The API the panel, the frame handler, IKD and bake build on:
+
+- :func:`kd_settings` (obj) → :class:`KDSettings`, the object's panel settings (defaults from
+  :mod:`kdfaces.defaults` when the object has none);
+- :func:`object_rig` (obj, scene) → :class:`~kdfaces.rig.BlendshapeRig`;
+- :func:`object_animation` (obj, scene) → :class:`~kdfaces.motion.FaceAnimation`;
+- :func:`object_trajectory` (obj, scene) → :class:`~kdfaces.motion.KinematicTrajectory`;
+- :func:`object_model` (obj, scene) → :class:`~kdfaces.dynamics.FaceModel`; :func:`object_system` → its
+  :class:`~kdfaces.dynamics.FaceSystem` (threads = :data:`kdfaces.defaults.THREADS`);
+- :func:`object_window` (obj, scene) → δ [s] or ``"adaptive"``;
+- :func:`frame_time_s` (scene, frame), :func:`scene_fps` (scene);
+- :func:`kd_state` (obj, scene, frame) → :class:`KDFrame`: x_KD and x_K of that frame, history-free;
+- :func:`apply_kd` (obj, scene, frame) writes x_KD − x_K into the KD shape key (value 1) and returns the KDFrame;
+  :func:`remove_kd_key` (obj) takes it away.
+
+Everything derived is cached per object (:func:`object_entry`) under a BLAKE2 hash of all it depends on — the
+basis and shape-key coordinates, key names, relative keys, mute flags and values, the topology, the fcurves'
+keyframes and handles, the scene's fps, frame range and unit scale, and the settings — recomputed on every call, so
+the cache is never stale: edit a key, a keyframe or a setting and the next frame rebuilds what changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kdfaces import defaults
+from kdfaces.errors import KDInputError
+
+__all__ = [
+    "KD_KEY", "KDSettings", "KDFrame", "ObjectEntry", "to_kd", "from_kd", "scene_fps", "scene_unit_m",
+    "frame_time_s", "kd_settings", "object_rig", "object_animation", "object_trajectory", "object_model",
+    "object_system", "object_window", "object_entry", "kd_state", "apply_kd", "remove_kd_key", "clear_cache",
+]
+
+#: Name of the shape key that holds x_KD − x_K (rewritten on every frame change, value 1).
+KD_KEY = "KD"
+
+
+# --- conventions -----------------------------------------------------------------------------------------------
+def to_kd(co, unit_m: float) -> np.ndarray:
+    """Blender mesh-local points ``co`` (..., 3) [scene units, z up] → kdfaces points [m, y up]."""
+    co = np.asarray(co, dtype=np.float64)
+    return np.stack([co[..., 0], co[..., 2], -co[..., 1]], axis=-1) * float(unit_m)
+
+
+def from_kd(x, unit_m: float) -> np.ndarray:
+    """kdfaces points or offsets ``x`` (..., 3) [m, y up] → Blender mesh-local ones [scene units, z up]."""
+    x = np.asarray(x, dtype=np.float64) / float(unit_m)
+    return np.stack([x[..., 0], -x[..., 2], x[..., 1]], axis=-1)
+
+
+def scene_fps(scene) -> float:
+    """The scene's frame rate [1/s]: ``render.fps / render.fps_base``."""
+    return float(scene.render.fps) / float(scene.render.fps_base)
+
+
+def scene_unit_m(scene) -> float:
+    """Metres per Blender unit (``unit_settings.scale_length``; Blender units are metres at 1)."""
+    s = float(scene.unit_settings.scale_length)
+    if not (s > 0 and np.isfinite(s)):
+        raise KDInputError(f"scene {scene.name!r}: unit scale_length {s} is not a positive number of metres")
+    return s
+
+
+def frame_time_s(scene, frame: float) -> float:
+    """Shot time [s] of scene frame ``frame`` (may be fractional): (frame − frame_start) / fps."""
+    return (float(frame) - float(scene.frame_start)) / scene_fps(scene)
+
+
+# --- settings --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class KDSettings:
+    """An object's KD settings (the panel's PropertyGroup ``obj.kdfaces``, or the defaults).
+
+    Attributes:
+        enabled: KD on the timeline for this object.
+        stiff_s, loose_s: settle times [s] over bone and in cheeks and lips (equal: one settle time everywhere;
+            else :func:`kdfaces.dynamics.soft_tissue_settle_map`).
+        damping_ratio: ζ; shape_matching_alpha: α ∈ [0, 1].
+        window_mode: "auto", "adaptive" or "seconds"; window_s: δ [s] when ``window_mode`` is "seconds".
+    """
+
+    enabled: bool = False
+    stiff_s: float = defaults.SETTLE_TIME_S
+    loose_s: float = defaults.SETTLE_TIME_S
+    damping_ratio: float = defaults.DAMPING_RATIO
+    shape_matching_alpha: float = defaults.SHAPE_MATCHING_ALPHA
+    window_mode: str = defaults.WINDOW_S
+    window_s: float = defaults.FIXED_WINDOW_S
+
+    def model_key(self) -> tuple:
+        return (self.stiff_s, self.loose_s, self.damping_ratio, self.shape_matching_alpha)
+
+    def window_key(self) -> tuple:
+        return (self.window_mode, self.window_s if self.window_mode == "seconds" else None)
+
+
+def kd_settings(obj) -> KDSettings:
+    """The KD settings of ``obj`` (its ``kdfaces`` PropertyGroup; the defaults where it has none)."""
+    p = getattr(obj, "kdfaces", None)
+    if p is None:
+        return KDSettings()
+    return KDSettings(enabled=bool(p.enabled), stiff_s=float(p.stiff_s), loose_s=float(p.loose_s),
+                      damping_ratio=float(p.damping_ratio), shape_matching_alpha=float(p.shape_matching_alpha),
+                      window_mode=str(p.window_mode).lower(), window_s=float(p.window_s))
+
+
+# --- reading the mesh ------------------------------------------------------------------------------------------
+def _mesh(obj):
+    if getattr(obj, "type", None) != "MESH":
+        raise KDInputError(f"object {getattr(obj, 'name', obj)!r}: expected a mesh object, got "
+                           f"{getattr(obj, 'type', type(obj).__name__)}")
+    return obj.data
+
+
+def _shape_blocks(obj):
+    """(reference key, [the blend-shape key blocks]) of ``obj``; a mesh without shape keys is an error."""
+    mesh = _mesh(obj)
+    sk = mesh.shape_keys
+    blocks = [] if sk is None else [kb for kb in sk.key_blocks]
+    ref = None if sk is None else sk.reference_key
+    shapes = [kb for kb in blocks if ref is not None and kb.name != ref.name and kb.name != KD_KEY]
+    if sk is None or not shapes:
+        raise KDInputError(f"object {obj.name!r}: mesh {mesh.name!r} has no shape keys to animate (expected a Basis "
+                           "and at least one shape key, e.g. from a glTF/FBX face rig)")
+    if not sk.use_relative:
+        raise KDInputError(f"object {obj.name!r}: shape keys are absolute (Relative is off); expected relative keys")
+    for kb in shapes:
+        if kb.vertex_group:
+            raise KDInputError(f"object {obj.name!r}: shape key {kb.name!r} is masked by vertex group "
+                               f"{kb.vertex_group!r}; expected unmasked shape keys")
+    return ref, shapes
+
+
+def _co(block_or_mesh, n: int) -> np.ndarray:
+    """(n, 3) float32 coordinates of a key block's points or a mesh's vertices (foreach_get)."""
+    buf = np.empty(n * 3, dtype=np.float32)
+    (block_or_mesh.data if hasattr(block_or_mesh, "relative_key") else block_or_mesh.vertices).foreach_get("co", buf)
+    return buf.reshape(n, 3)
+
+
+def _topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(triangles (F, 3), polygon corner counts (P,), polygon corners (L,)) of ``mesh``."""
+    mesh.calc_loop_triangles()
+    tri = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
+    mesh.loop_triangles.foreach_get("vertices", tri)
+    counts = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", counts)
+    corners = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", corners)
+    return tri.reshape(-1, 3), counts, corners
+
+
+def _action_fcurves(id_data):
+    """{data_path: fcurve} of ``id_data``'s action (legacy or slotted/layered actions)."""
+    ad = getattr(id_data, "animation_data", None)
+    action = None if ad is None else ad.action
+    if action is None:
+        return {}
+    curves = None
+    slot = getattr(ad, "action_slot", None)
+    layers = getattr(action, "layers", None)
+    if layers and slot is not None:
+        for layer in layers:
+            for strip in layer.strips:
+                bag = strip.channelbag(slot) if hasattr(strip, "channelbag") else None
+                if bag is not None:
+                    curves = list(bag.fcurves)
+    if curves is None:
+        curves = list(getattr(action, "fcurves", ()))
+    return {fc.data_path: fc for fc in curves if fc.array_index == 0}
+
+
+def _fcurve_bytes(fc) -> bytes:
+    n = len(fc.keyframe_points)
+    buf = np.empty(n * 6, dtype=np.float32)
+    if n:
+        kp = fc.keyframe_points
+        kp.foreach_get("co", buf[: 2 * n])
+        kp.foreach_get("handle_left", buf[2 * n: 4 * n])
+        kp.foreach_get("handle_right", buf[4 * n:])
+    kinds = "".join(f"{k.interpolation}{k.easing}" for k in fc.keyframe_points)
+    mods = "".join(m.type for m in fc.modifiers)
+    return buf.tobytes() + f"{kinds}|{fc.extrapolation}|{mods}|{fc.mute}".encode()
+
+
+def _frames(scene) -> np.ndarray:
+    f0, f1 = int(scene.frame_start), int(scene.frame_end)
+    if f1 <= f0:
+        raise KDInputError(f"scene {scene.name!r}: frame range {f0}–{f1}; expected frame_end > frame_start")
+    return np.arange(f0, f1 + 1)
+
+
+# --- the per-object cache --------------------------------------------------------------------------------------
+@dataclass
+class ObjectEntry:
+    """What one object's KD needs, built once per content hash (see the module docstring)."""
+
+    rig_key: bytes = b""
+    anim_key: bytes = b""
+    model_key: tuple = ()
+    window_key: tuple = ()
+    rig: object = None
+    animation: object = None
+    trajectory: object = None
+    model: object = None
+    system: object = None
+    window: object = None
+    frame_cache: dict = field(default_factory=dict)
+
+    def close(self) -> None:
+        if self.system is not None:
+            self.system.close()
+            self.system = None
+
+
+_ENTRIES: dict[int, ObjectEntry] = {}
+
+
+def clear_cache() -> None:
+    """Drop every object's cached rig, model and system (stops their worker threads)."""
+    for e in _ENTRIES.values():
+        e.close()
+    _ENTRIES.clear()
+
+
+def _entry_id(obj) -> int:
+    return int(getattr(obj, "session_uid", 0)) or id(obj.data)
+
+
+def _rig_hash(obj, scene, ref, shapes) -> tuple[bytes, list[np.ndarray]]:
+    """(hash, [basis, each shape's relative-key-subtracted coordinates…]) of the mesh and its shape keys."""
+    mesh = obj.data
+    n = len(mesh.vertices)
+    h = hashlib.blake2b(digest_size=16)
+    h.update(f"{n}|{len(mesh.polygons)}|{len(mesh.loops)}|{scene_unit_m(scene)!r}".encode())
+    blocks = {ref.name: _co(ref, n)}
+    h.update(blocks[ref.name].tobytes())
+    for kb in shapes:
+        rel = kb.relative_key.name if kb.relative_key is not None else ref.name
+        h.update(f"|{kb.name}|{rel}".encode())
+        blocks[kb.name] = _co(kb, n)
+        h.update(blocks[kb.name].tobytes())
+    counts = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", counts)
+    corners = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", corners)
+    h.update(counts.tobytes())
+    h.update(corners.tobytes())
+    return h.digest(), blocks
+
+
+def _anim_hash(obj, scene, shapes) -> bytes:
+    h = hashlib.blake2b(digest_size=16)
+    h.update(f"{scene.frame_start}|{scene.frame_end}|{scene.render.fps}|{scene.render.fps_base!r}".encode())
+    curves = _action_fcurves(obj.data.shape_keys)
+    for kb in shapes:
+        fc = curves.get(f'key_blocks["{kb.name}"].value')
+        h.update(f"|{kb.name}|{kb.mute}|{kb.value!r}|".encode())
+        if fc is not None:
+            h.update(_fcurve_bytes(fc))
+    return h.digest()
+
+
+def _build_rig(obj, scene, ref, shapes, blocks):
+    from kdfaces.rig import BlendshapeRig
+
+    unit = scene_unit_m(scene)
+    mesh = obj.data
+    basis = blocks[ref.name].astype(np.float64)
+    deltas = np.empty((len(shapes), len(basis), 3), dtype=np.float32)
+    for k, kb in enumerate(shapes):
+        rel = kb.relative_key.name if kb.relative_key is not None and kb.relative_key.name in blocks else ref.name
+        d = blocks[kb.name].astype(np.float64) - blocks[rel].astype(np.float64)
+        deltas[k] = to_kd(d, unit)
+    tri, counts, corners = _topology(mesh)
+    return BlendshapeRig.create(to_kd(basis, unit), deltas, tri, [kb.name for kb in shapes], name=obj.name,
+                                polygons=(counts, corners))
+
+
+def _build_animation(obj, scene, shapes):
+    from kdfaces.motion import FaceAnimation, KeyframeCurve, ShapeTrack
+
+    frames = _frames(scene)
+    fps = scene_fps(scene)
+    times = (frames - frames[0]) / fps
+    curves = _action_fcurves(obj.data.shape_keys)
+    w = np.empty((len(frames), len(shapes)))
+    for k, kb in enumerate(shapes):
+        fc = curves.get(f'key_blocks["{kb.name}"].value')
+        if kb.mute:
+            w[:, k] = 0.0
+        elif fc is None or fc.mute or not len(fc.keyframe_points):
+            w[:, k] = kb.value
+        else:
+            w[:, k] = [fc.evaluate(float(f)) for f in frames]  # one call per frame and shape, not per vertex
+    curve = KeyframeCurve.create(times, w, interpolation="catmull-rom", where=f"object {obj.name!r} shape keys")
+    return FaceAnimation(tracks=(ShapeTrack(tuple(kb.name for kb in shapes), curve),), start_s=0.0,
+                         end_s=float(times[-1]), fps=fps, name=obj.name)
+
+
+def _check_armature(obj) -> None:
+    from kdfaces.rig.skeleton import joint_role
+
+    arm = obj.find_armature() if hasattr(obj, "find_armature") else None
+    if arm is None:
+        return
+    bones = [b.name for b in arm.data.bones]
+    if not any(joint_role(b) == "head" for b in bones):
+        shown = ", ".join(bones[:5]) + (", …" if len(bones) > 5 else "")
+        raise KDInputError(f"object {obj.name!r}: armature {arm.name!r} has no head bone (bones: {shown or 'none'}); "
+                           "expected a bone named like 'Head' or 'mixamorig:Head', or remove the armature")
+
+
+def _model(rig, s: KDSettings):
+    from kdfaces.dynamics import FaceModel, soft_tissue_settle_map
+    from kdfaces.rig.parts import rigid_pieces
+
+    for name, v in (("stiff settle time", s.stiff_s), ("loose settle time", s.loose_s)):
+        if not (v > 0 and np.isfinite(v)):
+            raise KDInputError(f"KD settings: {name} {v} s; expected a positive number of seconds")
+    if not (s.damping_ratio > 0):
+        raise KDInputError(f"KD settings: damping ratio {s.damping_ratio}; expected a positive number")
+    if not (0.0 <= s.shape_matching_alpha <= 1.0):
+        raise KDInputError(f"KD settings: shape-matching alpha {s.shape_matching_alpha}; expected 0 to 1")
+    settle = s.stiff_s if s.stiff_s == s.loose_s else soft_tissue_settle_map(rig, stiff_s=s.stiff_s,
+                                                                             loose_s=s.loose_s)
+    return FaceModel.from_rig(rig, settle_time_s=settle, damping_ratio=s.damping_ratio,
+                              shape_matching_alpha=s.shape_matching_alpha, rigid=rigid_pieces(rig))
+
+
+def object_entry(obj, scene) -> ObjectEntry:
+    """The cached rig, animation, trajectory, model, system and window of ``obj``, rebuilt where their hash changed.
+
+    Raises :class:`~kdfaces.errors.KDInputError` for a mesh without shape keys, an armature without a head bone,
+    bad settings or a window the library refuses; the cache is left as it was then."""
+    from kdfaces.dynamics import FaceSystem
+    from kdfaces.motion import KinematicTrajectory
+
+    _check_armature(obj)
+    ref, shapes = _shape_blocks(obj)
+    s = kd_settings(obj)
+    rig_key, blocks = _rig_hash(obj, scene, ref, shapes)
+    anim_key = _anim_hash(obj, scene, shapes)
+    e = _ENTRIES.get(_entry_id(obj))
+    new = ObjectEntry() if e is None else ObjectEntry(**{k: getattr(e, k) for k in ObjectEntry.__dataclass_fields__})
+    if new.rig_key != rig_key:
+        new.rig, new.model, new.trajectory = _build_rig(obj, scene, ref, shapes, blocks), None, None
+        new.rig_key = rig_key
+    if new.anim_key != anim_key or new.trajectory is None:
+        new.animation = _build_animation(obj, scene, shapes)
+        new.trajectory = KinematicTrajectory(new.rig, new.animation, strict=True)
+        new.anim_key, new.window = anim_key, None
+    if new.model is None or new.model_key != s.model_key():
+        new.model, new.system, new.window = _model(new.rig, s), None, None
+        new.model_key = s.model_key()
+    if new.system is None:
+        new.system = FaceSystem(new.model, threads=defaults.THREADS)
+    if new.window is None or new.window_key != s.window_key():
+        new.window = _window(new.system, new.trajectory, s)
+        new.window_key = s.window_key()
+    if (new.rig_key, new.anim_key, new.model_key, new.window_key) != (
+            getattr(e, "rig_key", None), getattr(e, "anim_key", None), getattr(e, "model_key", None),
+            getattr(e, "window_key", None)):
+        new.frame_cache = {}
+    if e is not None and e.system is not None and e.system is not new.system:
+        e.close()
+    _ENTRIES[_entry_id(obj)] = new
+    return new
+
+
+def _window(system, trajectory, s: KDSettings):
+    from kdfaces.kd import window_steps
+    from kdfaces.window import automatic_window
+
+    if s.window_mode == "auto":
+        return float(automatic_window(system, trajectory).window_s)
+    if s.window_mode == "adaptive":
+        return "adaptive"
+    if s.window_mode != "seconds":
+        raise KDInputError(f"KD settings: window mode {s.window_mode!r}; expected auto, adaptive or seconds")
+    window_steps(s.window_s, 1.0 / trajectory.fps)  # refuses a non-positive or absurd window before any work
+    return float(s.window_s)
+
+
+def object_rig(obj, scene):
+    """The object's :class:`~kdfaces.rig.BlendshapeRig` (kdfaces axes, metres; cached)."""
+    return object_entry(obj, scene).rig
+
+
+def object_animation(obj, scene):
+    """The object's shape-key animation as a :class:`~kdfaces.motion.FaceAnimation` over the scene's range."""
+    return object_entry(obj, scene).animation
+
+
+def object_trajectory(obj, scene):
+    """x_K(t) of the object: :class:`~kdfaces.motion.KinematicTrajectory` of :func:`object_rig` and
+    :func:`object_animation` (shot time, :func:`frame_time_s`)."""
+    return object_entry(obj, scene).trajectory
+
+
+def object_model(obj, scene):
+    """The object's :class:`~kdfaces.dynamics.FaceModel` from its settings (rigid pieces follow x_K)."""
+    return object_entry(obj, scene).model
+
+
+def object_system(obj, scene):
+    """The object's :class:`~kdfaces.dynamics.FaceSystem` (kept warm between frames)."""
+    return object_entry(obj, scene).system
+
+
+def object_window(obj, scene):
+    """δ [s] of the object's KD (the automatic window, or the set seconds), or ``"adaptive"``."""
+    return object_entry(obj, scene).window
+
+
+# --- one frame ---------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class KDFrame:
+    """One frame's KD state: ``x_kd``, ``x_k`` (N, 3) [m, kdfaces axes], ``window_s`` δ [s], ``time_s`` [s],
+    ``frame``, ``ms`` the wall time it took [ms], ``deviation_m`` max |x_KD − x_K| [m]."""
+
+    frame: float
+    time_s: float
+    window_s: float
+    x_kd: np.ndarray
+    x_k: np.ndarray
+    ms: float
+    deviation_m: float
+
+
+def kd_state(obj, scene, frame: float | None = None) -> KDFrame:
+    """The KD state of ``obj`` at scene ``frame`` (default the current frame, subframe included), computed
+    history-free: :func:`kdfaces.kd.simulate_kd` of that one time with the object's window, so it never depends
+    on which frames were visited before. Frames outside the scene range are clamped to it."""
+    from kdfaces.kd import simulate_kd
+    from kdfaces.window import adaptive_windows
+
+    t0 = time.perf_counter()
+    if frame is None:
+        frame = scene.frame_current + scene.frame_subframe
+    e = object_entry(obj, scene)
+    f = min(max(float(frame), float(scene.frame_start)), float(scene.frame_end))
+    t = frame_time_s(scene, f)
+    window = e.window
+    if window == "adaptive":
+        window = float(adaptive_windows(e.system, e.trajectory, np.array([t])).window_s[0])
+    x_k = e.trajectory.positions(np.array([t]))[0]
+    x_kd = x_k if window == 0 else simulate_kd(e.system, e.trajectory, np.array([t]), window)[0]
+    dev = float(np.sqrt(((x_kd - x_k) ** 2).sum(axis=1)).max())
+    return KDFrame(frame=f, time_s=t, window_s=float(window), x_kd=x_kd, x_k=x_k,
+                   ms=(time.perf_counter() - t0) * 1e3, deviation_m=dev)
+
+
+def _kd_block(obj, create: bool):
+    sk = obj.data.shape_keys
+    kb = None if sk is None else sk.key_blocks.get(KD_KEY)
+    if kb is None and create:
+        kb = obj.shape_key_add(name=KD_KEY, from_mix=False)
+        kb.slider_min, kb.slider_max = 0.0, 1.0
+    return kb
+
+
+def apply_kd(obj, scene, frame: float | None = None) -> KDFrame:
+    """Compute :func:`kd_state` and show it: the KD shape key (:data:`KD_KEY`, relative to the basis, value 1)
+    holds x_KD − x_K in mesh-local Blender units, rewritten with ``foreach_set``. An error leaves the mesh as it
+    was (the key is only added once the state exists)."""
+    state = kd_state(obj, scene, frame)
+    ref, _ = _shape_blocks(obj)
+    kb = _kd_block(obj, create=True)
+    n = len(obj.data.vertices)
+    basis = _co(ref, n)
+    offset = from_kd(state.x_kd - state.x_k, scene_unit_m(scene)).astype(np.float32)
+    kb.relative_key = ref
+    kb.data.foreach_set("co", (basis + offset).reshape(-1))
+    if kb.value != 1.0:
+        kb.value = 1.0
+    kb.mute = False
+    obj.data.update()
+    return state
+
+
+def remove_kd_key(obj) -> bool:
+    """Remove the KD shape key of ``obj``; whether there was one."""
+    kb = _kd_block(obj, create=False) if obj.type == "MESH" else None
+    if kb is None:
+        return False
+    obj.shape_key_remove(kb)
+    return True

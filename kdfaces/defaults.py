@@ -19,7 +19,7 @@ __all__ = [
     "TET_EDGE_LENGTH_FAC", "TET_ENVELOPE_FAC", "TET_COARSEN", "YOUNGS_PA", "POISSON_RATIO", "DENSITY_KG_M3",
     "MATERIAL_MODEL", "NEWTON_TOL_M", "CONTACT_DHAT_FAC", "CONTACT_GRID_NODES", "CONTACT_FRICTION_EPS_V_MPS",
     "ATTACH_DISTANCE_M", "HAT_COLLIDERS", "OMEGA_MAX_RADPS", "V_MAX_MPS",
-    "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES",
+    "RAYLEIGH_ALPHA", "RAYLEIGH_BETA", "HAT_STEP_S", "HAT_WINDOW_S", "BAKE_CHUNK_FRAMES", "FRAME_START",
     "WINDOW_MODES", "FIXED_WINDOW_S", "MAX_STEPS", "SCAN_COST", "default_step", "user_cache_dir", "window_argument",
     "max_steps_argument",
 ]
@@ -161,6 +161,12 @@ SCAN_COST = 4
 #: Frames per bake task (one chunk of the store): large enough that a task's KD batch dwarfs Dask's per-task
 #: overhead, small enough that a 2-minute take gives every worker of a few machines many tasks.
 BAKE_CHUNK_FRAMES = 32
+
+# --- exports (USD, PC2, glTF) --------------------------------------------------------------------------------------
+#: The scene frame of a shot's first frame in every export: shot frame k is scene frame FRAME_START + k (USD time
+#: code, PC2 header start and Mesh Cache start frame, glTF key time (FRAME_START + k) / fps). 1 is Blender's default
+#: scene start.
+FRAME_START = 1
 
 
 def user_cache_dir():

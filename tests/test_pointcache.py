@@ -15,11 +15,15 @@ import pytest
 
 from kdfaces import FaceAnimation, KDInputError, KeyframeCurve, KinematicTrajectory, ShapeTrack
 from kdfaces.cli import main as kdfaces_main
+from kdfaces.defaults import FRAME_START
 from kdfaces.errors import KDIOError
 from kdfaces.io.export import add_export_option, export_trajectory
+from kdfaces.io.gltf import gltf_vertex_map
+from kdfaces.io.obj import vertex_normals, vertex_normals_frames
 from kdfaces.io.pointcache import (
     read_pc2,
     read_usd,
+    usd_time_codes,
     write_pc2,
     write_pc2_chunks,
     write_usd,
@@ -60,23 +64,46 @@ def test_usd_round_trip_read_independently(tmp_path, rig, shot):
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
     assert stage.GetTimeCodesPerSecond() == FPS and stage.GetFramesPerSecond() == FPS
-    assert stage.GetStartTimeCode() == pytest.approx(5.0) and stage.GetEndTimeCode() == pytest.approx(24.0)
+    # the shot starts at t = 0.2 s (its frame 5 on the 25 fps grid) and still plays from scene frame FRAME_START
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (FRAME_START, FRAME_START + len(x) - 1)
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/face"))
     assert stage.GetDefaultPrim().GetPath() == mesh.GetPath()
     np.testing.assert_array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), rig.faces)
     assert set(np.asarray(mesh.GetFaceVertexCountsAttr().Get())) == {3}
     codes = mesh.GetPointsAttr().GetTimeSamples()
-    np.testing.assert_allclose(codes, times * FPS, rtol=0, atol=1e-9)
-    assert mesh.GetExtentAttr().GetTimeSamples() == codes
+    assert codes == [float(FRAME_START + k) for k in range(len(x))]  # whole numbers, not 7.000000000000001
+    assert mesh.GetExtentAttr().GetTimeSamples() == codes == mesh.GetNormalsAttr().GetTimeSamples()
+    assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
     for f, code in enumerate(codes):
         pts = np.asarray(mesh.GetPointsAttr().Get(code))
         _assert_float32_exact(pts, x[f])
         ext = np.asarray(mesh.GetExtentAttr().Get(code))
         np.testing.assert_array_equal(ext, [pts.min(axis=0), pts.max(axis=0)])
+        # the OBJ/glTF exports' smooth normals of the stored float32 positions, rounded to float32 (≤ 6e-8)
+        normals = np.asarray(mesh.GetNormalsAttr().Get(code), dtype=np.float64)
+        assert np.abs(normals - vertex_normals(pts.astype(np.float64), rig.faces)).max() <= 1e-7
     cache = read_usd(path)
     _assert_float32_exact(cache.positions, x)
-    np.testing.assert_allclose(cache.times, times, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cache.times, times, rtol=0, atol=1e-12)  # the shot's own times, from the metadata
     np.testing.assert_array_equal(cache.faces, rig.faces)
+    assert cache.frame_start == FRAME_START and cache.normals.shape == x.shape
+
+
+def test_time_codes_are_whole_frames(rig):
+    """Frame times k / fps in float64 are not whole multiples of 1 / fps (7 / 25 · 25 = 7.000000000000001): the
+    codes are snapped; a time off the grid keeps its fraction."""
+    t = np.arange(151) / 25.0
+    assert (t * 25.0 != np.arange(151)).any()  # what the snapping is for
+    codes = usd_time_codes(t, 25.0)
+    np.testing.assert_array_equal(codes, FRAME_START + np.arange(151.0))
+    assert usd_time_codes([0.0, 0.02], 25.0)[1] == FRAME_START + 0.5
+
+
+def test_vertex_normals_of_frames_equal_the_single_frame_ones(rig, shot):
+    _, x = shot
+    many = vertex_normals_frames(x[:4], rig.faces)
+    one = np.stack([vertex_normals(v, rig.faces) for v in x[:4]])
+    assert np.abs(many - one).max() <= 1e-12  # the same sums in another order: float64 rounding
 
 
 def test_usda_text_and_inferred_fps(tmp_path, rig, shot):
@@ -85,21 +112,23 @@ def test_usda_text_and_inferred_fps(tmp_path, rig, shot):
     assert path.read_text().startswith("#usda")
     stage = Usd.Stage.Open(str(path))
     assert stage.GetTimeCodesPerSecond() == pytest.approx(FPS)  # inferred from the 0.04 s spacing
-    _assert_float32_exact(np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/head")).GetPointsAttr().Get(6.0)), x[1])
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/head"))
+    _assert_float32_exact(np.asarray(mesh.GetPointsAttr().Get(FRAME_START + 1.0)), x[1])
 
 
-def blender_meshcache_frame(path, scene_frame: float) -> np.ndarray:
-    """What Blender's Mesh Cache modifier shows at ``scene_frame`` for a PC2 file, with its defaults (time mode
-    "Frame", play mode "Scene", frame start 0, frame scale 1, interpolation linear).
+def blender_meshcache_frame(path, scene_frame: float, *, frame_start: float = FRAME_START) -> np.ndarray:
+    """What Blender's Mesh Cache modifier shows at ``scene_frame`` for a PC2 file, set up as the importer does
+    (time mode "Frame", play mode "Scene", Frame Start ``frame_start``, frame scale 1, interpolation linear).
 
-    Read off ``MOD_meshcache_pc2.cc``: in Frame mode the frame is the scene frame itself, the header's start and
-    sampling are not used; it is clamped to [0, samples − 1] (``MOD_meshcache_calc_range``) and the samples on
-    either side are blended linearly. Sample k is thus shown at scene frame k.
+    Read off ``MOD_meshcache.cc`` / ``MOD_meshcache_pc2.cc``: in Frame mode the sample is the scene frame minus the
+    modifier's Frame Start, the header's start and sampling are not used; it is clamped to [0, samples − 1]
+    (``MOD_meshcache_calc_range``) and the samples on either side are blended linearly. (The Blender test in
+    test_blender_imports.py checks this against the modifier itself.)
     """
     data = path.read_bytes()
     _, _, points, _, _, samples = struct.unpack("<12siiffi", data[:32])
     x = np.frombuffer(data, dtype="<f4", offset=32).reshape(samples, points, 3).astype(np.float64)
-    f = min(max(float(scene_frame), 0.0), samples - 1.0)
+    f = min(max(float(scene_frame) - frame_start, 0.0), samples - 1.0)
     lo = int(np.floor(f))
     hi = min(lo + 1, samples - 1)
     return (1 - (f - lo)) * x[lo] + (f - lo) * x[hi]
@@ -110,35 +139,58 @@ def test_pc2_round_trip_read_with_struct(tmp_path, shot):
     path = write_pc2(tmp_path / "shot.pc2", x, times, fps=FPS)
     data = path.read_bytes()
     sig, version, points, start, sampling, samples = struct.unpack("<12siiffi", data[:32])
-    assert (sig, version, points, samples) == (b"POINTCACHE2\0", 1, x.shape[1], len(x) + 1)
-    assert start == 0.0 and sampling == 1.0  # one leading copy of the first frame: see the Blender test below
-    assert len(data) == 32 + (len(x) + 1) * x.shape[1] * 12
+    assert (sig, version, points, samples) == (b"POINTCACHE2\0", 1, x.shape[1], len(x))
+    assert start == FRAME_START and sampling == 1.0  # the scene frame of the first sample; no leading copies
+    assert len(data) == 32 + len(x) * x.shape[1] * 12
     frame_bytes = x.shape[1] * 12
     for f in range(len(x)):
-        k = f + 1
+        k = f
         vals = struct.unpack(f"<{3 * x.shape[1]}f", data[32 + k * frame_bytes: 32 + (k + 1) * frame_bytes])
         _assert_float32_exact(np.asarray(vals).reshape(-1, 3), x[f])
     cache = read_pc2(path, fps=FPS, num_vertices=x.shape[1])
     _assert_float32_exact(cache.positions, x)
     np.testing.assert_allclose(cache.times, times - times[0], rtol=0, atol=1e-9)
+    assert cache.frame_start == FRAME_START
+    legacy = write_pc2(tmp_path / "legacy.pc2", x, times, fps=FPS, frame_offset=1)  # for a Frame Start 0 modifier
+    assert struct.unpack("<12siiffi", legacy.read_bytes()[:32])[3] == FRAME_START - 1
+    back = read_pc2(legacy, fps=FPS, frame_offset=1)
+    _assert_float32_exact(back.positions, x)
+    assert back.frame_start == FRAME_START
 
 
-def test_pc2_plays_the_first_frame_at_blender_scene_frame_one(tmp_path, shot):
-    """A new Blender scene starts at frame 1: the shot's frame f (here starting at t = 0.2 s) shows at frame f + 1,
-    and frame 0 (before the scene start) shows the first pose too."""
+def test_pc2_plays_the_first_frame_at_scene_frame_start(tmp_path, shot):
+    """Shot frame f (here starting at t = 0.2 s) shows at scene frame FRAME_START + f; before the start the first
+    pose, after the end the last one; a frame_offset=1 file plays the same on a modifier left at Frame Start 0."""
     times, x = shot
     path = write_pc2(tmp_path / "shot.pc2", x, times, fps=FPS)
+    legacy = write_pc2(tmp_path / "legacy.pc2", x, times, fps=FPS, frame_offset=1)
     for f in (0, 1, 7, len(x) - 1):
-        _assert_float32_exact(blender_meshcache_frame(path, f + 1), x[f])
-    _assert_float32_exact(blender_meshcache_frame(path, 0), x[0])
+        _assert_float32_exact(blender_meshcache_frame(path, FRAME_START + f), x[f])
+        _assert_float32_exact(blender_meshcache_frame(legacy, FRAME_START + f, frame_start=0), x[f])
+    _assert_float32_exact(blender_meshcache_frame(path, FRAME_START - 1), x[0])
     _assert_float32_exact(blender_meshcache_frame(path, len(x) + 5), x[-1])  # held after the end
+
+
+def test_pc2_in_gltf_vertex_order(tmp_path, rig, shot):
+    """``pc2-gltf``: the glTF export's vertices (the rig's, then the UV-seam copies) at every frame."""
+    times, x = shot
+    vmap = gltf_vertex_map(rig)
+    assert len(vmap) > rig.num_vertices and np.array_equal(vmap[:rig.num_vertices], np.arange(rig.num_vertices))
+    path = export_trajectory(tmp_path, x, times, kind="pc2-gltf", rig=rig, fps=FPS, name="shot")
+    assert path.name == "shot.gltf.pc2"
+    back = read_pc2(path, fps=FPS, num_vertices=len(vmap))
+    _assert_float32_exact(back.positions, x[:, vmap])
+    with pytest.raises(KDInputError, match="needs the rig"):
+        export_trajectory(tmp_path, x, times, kind="pc2-gltf", fps=FPS)
+    with pytest.raises(KDInputError, match="vertex_map"):
+        write_pc2(tmp_path / "bad.pc2", x, times, vertex_map=np.array([0, rig.num_vertices]))
 
 
 def test_pc2_sub_sampled_header_and_units(tmp_path, shot):
     times, x = shot
     path = write_pc2(tmp_path / "every_other.pc2", x[::2], times[::2], fps=FPS, unit_m=0.01)
     _, _, _, start, sampling, samples = struct.unpack("<12siiffi", path.read_bytes()[:32])
-    assert (start, sampling, samples) == (0.0, 2.0, len(x[::2]) + 1)
+    assert (start, sampling, samples) == (FRAME_START, 2.0, len(x[::2]))
     np.testing.assert_allclose(read_pc2(path, fps=FPS, unit_m=0.01).positions, x[::2], rtol=1e-6, atol=1e-9)
 
 
@@ -153,6 +205,7 @@ def test_export_trajectory_dispatch(tmp_path, rig, shot):
     ap = argparse.ArgumentParser()
     add_export_option(ap)
     assert ap.parse_args(["--export", "usd", "--export", "pc2"]).export == ["usd", "pc2"]
+    assert ap.parse_args(["--export", "pc2-gltf"]).export == ["pc2-gltf"]
     with pytest.raises(KDInputError, match="expected one of"):
         export_trajectory(tmp_path / "out", x, times, kind="abc")
 

@@ -1,8 +1,14 @@
 """Export entry points: point caches of trajectories by kind, and rigs for other tools.
 
-``export_trajectory`` is what ``kdfaces demo/run/render --export usd|pc2`` call for the final trajectory;
+``export_trajectory`` is what ``kdfaces demo/run/render/punch --export usd|pc2`` call for the final trajectory;
 ``add_export_option`` adds that repeatable option to a parser; ``export_rig`` writes a rig as an OBJ folder and
 glTF (the ``kdfaces export-rig`` verb).
+
+Every cache numbers frames alike: shot frame k is scene frame :data:`~kdfaces.defaults.FRAME_START` + k. A PC2
+holds one mesh's vertices in its order: ``pc2`` the rig's (the OBJ export, an FBX rig, the USD cache), ``pc2-gltf``
+the glTF export's (``<name>.gltf.pc2``: the rig's vertices, then the copies ``save_gltf`` splits at UV seams,
+:func:`~kdfaces.io.gltf.gltf_vertex_map`), so that Blender's Mesh Cache modifier drives the mesh each importer
+creates.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from .pointcache import write_pc2, write_usd
 
 __all__ = ["EXPORT_KINDS", "export_trajectory", "export_chunks", "open_export", "add_export_option", "export_rig"]
 
-EXPORT_KINDS = {"usd": ".usdc", "usda": ".usda", "pc2": ".pc2"}
+EXPORT_KINDS = {"usd": ".usdc", "usda": ".usda", "pc2": ".pc2", "pc2-gltf": ".gltf.pc2"}
 RIG_FORMATS = ("obj", "gltf", "glb")
 
 
@@ -24,11 +30,13 @@ def export_trajectory(path, positions, times, *, kind: str | None = None, faces=
 
     Args:
         path: a file, or a folder (existing, or without a suffix) that receives ``<name>.usdc`` / ``<name>.pc2``.
-        kind: ``"usd"`` (binary crate), ``"usda"`` (text) or ``"pc2"``; inferred from the file suffix if None.
+        kind: ``"usd"`` (binary crate), ``"usda"`` (text), ``"pc2"`` (the rig's vertex order) or ``"pc2-gltf"``
+            (the vertex order of the rig's glTF export; needs ``rig``); inferred from the file suffix if None.
         faces: triangles (M, 3), for USD when no ``rig`` is given (PC2 stores none).
         fps: frame rate [1/s]; inferred from ``times`` if None.
         name: file stem inside a folder, and the USD prim name.
-        rig: the rig the positions belong to: USD then keeps its polygons (quads stay quads) and UVs.
+        rig: the rig the positions belong to: USD then keeps its polygons (quads stay quads) and UVs; ``pc2-gltf``
+            takes its glTF vertex order from it.
         unit_m: metres per written unit: 1 writes metres, ``rig.source_unit_m`` the rig's own unit (0.01: cm).
 
     Returns:
@@ -47,6 +55,8 @@ def export_trajectory(path, positions, times, *, kind: str | None = None, faces=
         p = p / f"{name}{EXPORT_KINDS[kind]}"
     if kind == "pc2":
         return write_pc2(p, positions, times, fps=fps, unit_m=unit_m)
+    if kind == "pc2-gltf":
+        return write_pc2(p, positions, times, fps=fps, unit_m=unit_m, vertex_map=_gltf_map(p, rig))
     if rig is not None:
         return write_usd(p, positions, times, rig.faces, fps=fps, prim_name=name, unit_m=unit_m,
                          polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
@@ -79,17 +89,29 @@ def open_export(path, times, *, kind: str, num_vertices: int, fps: float | None 
         raise KDInputError(f"export kind {kind!r}: expected one of {sorted(EXPORT_KINDS)}")
     if kind == "pc2":
         return PC2Writer(p, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m)
+    if kind == "pc2-gltf":
+        return PC2Writer(p, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m, vertex_map=_gltf_map(p, rig))
     if rig is not None:
         return USDWriter(p, times, rig.faces, num_vertices=num_vertices, fps=fps, prim_name=name, unit_m=unit_m,
                          polygons=(rig.polygon_counts, rig.polygon_corners), uvs=rig.uvs)
     return USDWriter(p, times, faces, num_vertices=num_vertices, fps=fps, prim_name=name, unit_m=unit_m)
 
 
+def _gltf_map(p: Path, rig):
+    """The glTF vertex order of ``rig`` for a ``pc2-gltf`` cache at ``p``."""
+    from .gltf import gltf_vertex_map
+
+    if rig is None:
+        raise KDInputError(f"{p}: a pc2-gltf cache needs the rig (its glTF vertex order)")
+    return gltf_vertex_map(rig)
+
+
 def add_export_option(parser) -> None:
-    """Add the repeatable ``--export {usd,usda,pc2}`` option (``args.export``: list of kinds, default empty) and
-    ``--export-unit {m,rig}`` (``args.export_unit``)."""
+    """Add the repeatable ``--export {usd,usda,pc2,pc2-gltf}`` option (``args.export``: list of kinds, default
+    empty) and ``--export-unit {m,rig}`` (``args.export_unit``)."""
     parser.add_argument("--export", action="append", default=[], choices=sorted(EXPORT_KINDS),
-                        help="also write a point cache of the final trajectory (repeatable)")
+                        help="also write a point cache of the final trajectory (repeatable): usd/usda, pc2 (the "
+                             "rig's vertices: OBJ, FBX), pc2-gltf (the glTF export's vertices, <name>.gltf.pc2)")
     parser.add_argument("--export-unit", default="m", choices=("m", "rig"),
                         help="point caches in metres (default) or in the rig file's own unit")
 

@@ -14,7 +14,18 @@ metres like kdfaces, so no other conversion happens. Weight animation channels (
 
 Export: :func:`save_gltf` writes a rig (and optionally its weight animation, sampled per frame) as ``.gltf``
 (one JSON file with an embedded base64 buffer) or ``.glb``. glTF stores float32, so the neutral round-trips to
-half a float32 ulp (≤ 1.2e-7 m for |x| < 2 m) and the float32 deltas exactly.
+half a float32 ulp (≤ 1.2e-7 m for |x| < 2 m) and the float32 deltas exactly. glTF holds one UV per vertex, so a
+vertex on a UV seam is written once per UV: the first ``N`` glTF vertices are the rig's, in its order, and the
+seam copies follow (:func:`gltf_vertex_map`; a PC2 for the glTF-imported mesh is written in that order,
+``--export pc2-gltf``). Key times follow the exports' frame numbering: shot frame k at ``(FRAME_START + k) / fps``
+[s], which Blender's importer (frame = time · scene fps) puts at scene frame ``FRAME_START + k``; the animation's
+``extras`` (``kdfaces_fps``, ``kdfaces_frame_start``, ``kdfaces_start_s``) let :func:`load_gltf` give the shot's
+own times back.
+
+Files re-exported by Blender load to the rig's vertices: the ``extras.kdfaces_source_vertices`` map when it is a
+valid map (Blender copies the extras with custom properties but not the accessor, so the index is stale and is
+then ignored), else vertices with the same position and the same morph deltas (bit for bit, float32) are merged,
+in order of first appearance.
 """
 
 from __future__ import annotations
@@ -26,6 +37,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from ..defaults import FRAME_START
 from ..errors import KDInputError, check_finite
 from ..motion.curves import KeyframeCurve
 from ..motion.joints import SkeletonAnimation
@@ -37,7 +49,8 @@ from .atomic import write_bytes_atomic
 from .obj import triangulate, vertex_normals
 from .pointcache import infer_fps
 
-__all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf", "INBETWEENS_EXTRAS"]
+__all__ = ["load_gltf", "load_gltf_rig", "load_gltf_animation", "save_gltf", "gltf_vertex_map", "INBETWEENS_EXTRAS",
+           "SOURCE_VERTICES_EXTRAS"]
 
 _COMPONENTS = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"), 5123: np.dtype("<u2"),
                5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
@@ -46,6 +59,9 @@ _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "M
 _TRIANGLES = 4
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _FLOAT, _UNSIGNED_INT = 5126, 5125
+#: ``animation.extras`` keys of :func:`save_gltf`: the shot's fps, the scene frame of its first frame and its start
+#: time [s] (key times are ``(frame_start + k) / fps``).
+_FPS_EXTRAS, _FRAME_START_EXTRAS, _START_EXTRAS = "kdfaces_fps", "kdfaces_frame_start", "kdfaces_start_s"
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -317,12 +333,7 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
     x0, dx, f = np.concatenate(neutral), np.concatenate(deltas, axis=1), np.concatenate(faces)
     uv = np.concatenate(uvs) if len(uvs) == len(m.primitives) else None
     part_names = [_primitive_name(doc, p, i) for i, p in enumerate(m.primitives)]
-    source = None
-    src_acc = (m.extras or {}).get("kdfaces_source_vertices") if isinstance(m.extras, dict) else None
-    if src_acc is not None and len(m.primitives) == 1:
-        source = doc.accessor(int(src_acc), f"{label} extras.kdfaces_source_vertices").reshape(-1).astype(np.int64)
-        if len(source) != len(x0) or source.min() < 0:
-            raise KDInputError(f"{doc.path}: {label}: extras.kdfaces_source_vertices does not map every vertex")
+    source = _source_map(doc, m, x0, dx)
     if apply_node_transform:
         node = next((i for i, n in enumerate(doc.gltf.nodes or []) if n.mesh == mesh_index), None)
         if node is not None:
@@ -350,6 +361,68 @@ def _read_rig(doc: _Document, mesh_index: int, *, apply_node_transform: bool):
         skeleton = head_chain_skeleton(*skin[:3], w, where=str(doc.path))
     return _rig(doc, neutral, deltas, source[f], names, name=name, uvs=uv_corners, part_names=part_names,
                 vertex_parts=vparts, skeleton=skeleton, inbetweens=inbetweens)
+
+
+#: ``mesh.extras`` key :func:`save_gltf` writes when it splits vertices at UV seams: the index of a SCALAR uint32
+#: accessor holding the rig vertex of each glTF vertex.
+SOURCE_VERTICES_EXTRAS = "kdfaces_source_vertices"
+
+
+def _valid_source_map(doc: _Document, m, x0: np.ndarray, dx: np.ndarray) -> np.ndarray | None:
+    """The ``extras.kdfaces_source_vertices`` map of mesh ``m`` (M,), or None when absent or not a valid map of
+    these vertices: an index that is no accessor (Blender copies the extras, not the accessor), another count, not
+    whole numbers, or vertices mapped together that differ in position or morph deltas."""
+    index = (m.extras or {}).get(SOURCE_VERTICES_EXTRAS) if isinstance(m.extras, dict) else None
+    accessors = doc.gltf.accessors or []
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(accessors):
+        return None
+    a = accessors[index]
+    if a.type != "SCALAR" or a.componentType not in (5121, 5123, 5125) or a.count != len(x0) or a.normalized:
+        return None
+    try:
+        source = doc.accessor(index, "extras.kdfaces_source_vertices").reshape(-1).astype(np.int64)
+    except KDInputError:
+        return None
+    n = int(source.max()) + 1
+    if np.unique(source).size != n:  # every rig vertex has a glTF vertex
+        return None
+    first = np.zeros(n, dtype=np.int64)
+    first[source[::-1]] = np.arange(len(source))[::-1]  # the first glTF vertex of each rig vertex
+    rep = first[source]
+    if not (np.array_equal(x0[rep], x0) and np.array_equal(dx[:, rep], dx)):
+        return None
+    return source
+
+
+def _merged_by_position(x0: np.ndarray, dx: np.ndarray) -> np.ndarray | None:
+    """Vertices with the same position and morph deltas (bit for bit) as one vertex, numbered in order of first
+    appearance: the source map (M,), or None when every vertex is distinct (nothing to merge)."""
+    keys = np.concatenate([x0[:, None, :], np.moveaxis(dx, 0, 1)], axis=1).reshape(len(x0), -1)
+    keys = np.ascontiguousarray(keys.astype(np.float32)).view(np.uint8).reshape(len(x0), -1)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(x0):
+        return None
+    order = np.argsort(first, kind="stable")  # groups by first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[inverse.reshape(-1)]
+
+
+def _source_map(doc: _Document, m, x0: np.ndarray, dx: np.ndarray) -> np.ndarray | None:
+    """The rig vertex of each glTF vertex of a one-primitive mesh (M,), or None to keep the vertices as they are:
+    a valid ``kdfaces_source_vertices`` map (written by :func:`save_gltf`), else a merge of coincident vertices
+    with equal morph deltas when the file was re-exported from a toolkit rig (its extras carry the stale map, or
+    its generator is not kdfaces). Files of other tools keep their vertices."""
+    if len(m.primitives) != 1:
+        return None
+    source = _valid_source_map(doc, m, x0, dx)
+    if source is not None:
+        return source
+    extras = m.extras if isinstance(m.extras, dict) else {}
+    generator = str(getattr(doc.gltf.asset, "generator", "") or "")
+    if SOURCE_VERTICES_EXTRAS in extras or "Khronos glTF Blender" in generator:
+        return _merged_by_position(x0, dx)
+    return None
 
 
 def _read_skin(doc: _Document, mesh_index: int, m, *, apply_node_transform: bool):
@@ -440,6 +513,23 @@ def _pick_animation(doc: _Document, mesh_index: int, animation):
                        f"animations with one: {[g.animations[ai].name or ai for ai, _ in found]}")
 
 
+def _shot_times(anim, times: np.ndarray) -> np.ndarray:
+    """Key ``times`` [s] of an animation :func:`save_gltf` wrote (its extras say fps, frame start and start time)
+    as the shot's times: ``start_s + (t · fps − frame_start) / fps``, whole frames snapped (the file's times are
+    float32); any other animation's times as they are."""
+    extras = anim.extras if isinstance(anim.extras, dict) else {}
+    try:
+        fps, start, t0 = (float(extras[k]) for k in (_FPS_EXTRAS, _FRAME_START_EXTRAS, _START_EXTRAS))
+    except (KeyError, TypeError, ValueError):
+        return times
+    if not (np.isfinite([fps, start, t0]).all() and fps > 0):
+        return times
+    frames = times * fps - start
+    whole = np.rint(frames)
+    frames = np.where(np.abs(frames - whole) <= 1e-3, whole, frames)
+    return t0 + frames / fps
+
+
 def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animation, fps,
                     inbetweens=()) -> FaceAnimation | None:
     picked = _pick_animation(doc, mesh_index, animation)
@@ -452,7 +542,7 @@ def _read_animation(doc: _Document, mesh_index: int, names: list[str], *, animat
     if not isinstance(ch.sampler, int) or not 0 <= ch.sampler < len(samplers):
         raise KDInputError(f"{doc.path}: {label}: weights channel names sampler {ch.sampler!r}, which does not exist")
     s = samplers[ch.sampler]
-    times = doc.floats(s.input, 1, f"{label} sampler {ch.sampler} input")[:, 0]
+    times = _shot_times(anim, doc.floats(s.input, 1, f"{label} sampler {ch.sampler} input")[:, 0])
     out = doc.floats(s.output, 1, f"{label} sampler {ch.sampler} output")[:, 0]
     interp, k, m = s.interpolation or "LINEAR", len(names), len(times)
     per_key = 3 * k if interp == "CUBICSPLINE" else k
@@ -591,15 +681,33 @@ def _split_at_uv_seams(rig: BlendshapeRig):
     """(source vertex of each glTF vertex (M,), triangles (F, 3) into them, UV per glTF vertex (M, 2) or None).
 
     glTF stores one UV per vertex, a rig one per polygon corner: a vertex whose corners carry different UVs (a seam)
-    becomes one glTF vertex per distinct UV, all with the same position, normal and morph deltas."""
+    becomes one glTF vertex per distinct UV, all with the same position, normal and morph deltas. glTF vertex i < N
+    is rig vertex i (with its smallest UV); the seam copies follow, ordered by rig vertex and UV."""
+    n = rig.num_vertices
     if rig.uvs is None:
-        return np.arange(rig.num_vertices), rig.faces, None
+        return np.arange(n), rig.faces, None
     tri_corner = triangulate(rig.polygon_counts, np.arange(len(rig.polygon_corners)))  # polygon-corner ids
     vertex = rig.polygon_corners[tri_corner].reshape(-1)
     uv = rig.uvs[tri_corner.reshape(-1)]
     keys = np.concatenate([vertex[:, None], np.ascontiguousarray(uv).view(np.int64)], axis=1)
     unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    return unique[:, 0], inverse.reshape(-1, 3), uv[first]
+    src = unique[:, 0]
+    primary = np.r_[True, src[1:] != src[:-1]]  # the first (smallest UV) copy of each vertex used by a face
+    copies = np.flatnonzero(~primary)
+    index = np.empty(len(src), dtype=np.int64)
+    index[primary] = src[primary]
+    index[copies] = n + np.arange(len(copies))
+    source = np.concatenate([np.arange(n), src[copies]])
+    uv_out = np.zeros((n + len(copies), 2))  # a vertex no face uses keeps UV (0, 0)
+    uv_out[index] = uv[first]
+    return source, index[inverse.reshape(-1)].reshape(-1, 3), uv_out
+
+
+def gltf_vertex_map(rig: BlendshapeRig) -> np.ndarray:
+    """The rig vertex of each vertex :func:`save_gltf` writes for ``rig``, shape (M,), M ≥ N: ``arange(N)``, then
+    the copies of the vertices on UV seams (one per extra UV). Blender's glTF importer keeps this order, so
+    ``positions[:, gltf_vertex_map(rig)]`` is a point cache for the imported mesh (``--export pc2-gltf``)."""
+    return _split_at_uv_seams(rig)[0]
 
 
 def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = None, sparse: bool = True) -> Path:
@@ -615,7 +723,9 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
             targets. The skeleton is not written.
         path: output file; the extension picks the container.
         animation: optional; its shape weights are sampled at its frame times and written as one LINEAR weights
-            channel (head rotations are not written). With in-betweens these are the target weights (expanded
+            channel (head rotations are not written), frame k at time ``(FRAME_START + k) / fps`` [s] (scene frame
+            ``FRAME_START + k`` in Blender; the shot's own times in ``load_gltf`` through the animation's extras).
+            With in-betweens these are the target weights (expanded
             through the in-betweens, so any glTF player shows the motion); :func:`load_gltf` turns them back into
             channel weights.
         sparse: store morph targets that move few vertices as sparse accessors.
@@ -657,13 +767,15 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
     g.scene = 0
     if animation is not None:
         times, w = _sampled_weights(rig, animation)
-        t32 = times.astype("<f4")[:, None]
+        fps = float(animation.fps)
+        t32 = (FRAME_START / fps + (times - times[0])).astype("<f4")[:, None]
         sampler = pygltflib.AnimationSampler(input=b.accessor(t32, "SCALAR", bounds=t32),
                                              output=b.accessor(w.astype("<f4").reshape(-1), "SCALAR"),
                                              interpolation="LINEAR")
         target = pygltflib.AnimationChannelTarget(node=0, path="weights")
-        g.animations.append(pygltflib.Animation(name=animation.name, samplers=[sampler],
-                                                channels=[pygltflib.AnimationChannel(sampler=0, target=target)]))
+        g.animations.append(pygltflib.Animation(
+            name=animation.name, samplers=[sampler], channels=[pygltflib.AnimationChannel(sampler=0, target=target)],
+            extras={_FPS_EXTRAS: fps, _FRAME_START_EXTRAS: FRAME_START, _START_EXTRAS: float(times[0])}))
     blob = b.blob()
     if p.suffix == ".glb":
         g.buffers.append(pygltflib.Buffer(byteLength=len(blob)))

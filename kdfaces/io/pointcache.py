@@ -3,17 +3,27 @@
 A point cache stores vertex positions x(t_f) [m], shape (F, N, 3), at frame times t_f [s], shape (F,), for a
 fixed mesh:
 
+**One frame numbering** for USD, PC2 and glTF (:func:`~kdfaces.io.gltf.save_gltf`): shot frame *k* (time
+``t_0 + k / fps``) is scene frame ``frame_start + k``, ``frame_start`` = :data:`kdfaces.defaults.FRAME_START` (1,
+Blender's default scene start).
+
 * **USD** (``usd-core``): one ``UsdGeom.Mesh`` with its polygons (quads stay quads: ``faceVertexCounts``), UVs as
-  the face-varying primvar ``st`` when the rig has them, and time-sampled ``points`` and ``extent`` at time codes
-  ``t_f · fps``; ``timeCodesPerSecond = framesPerSecond = fps``, up axis Y, ``metersPerUnit`` = the unit written
-  (1 for metres).
-* **PC2** (Blender's MeshCache modifier, ``MOD_meshcache_pc2.c``): a little-endian 32-byte header
+  the face-varying primvar ``st`` when the rig has them (the ``UsdPreviewSurface`` convention, and the name
+  Blender 4.5's own USD exporter gives the active UV map; its importer keeps it), time-sampled ``points``,
+  ``extent`` and per-vertex ``normals`` (the smooth area-weighted normals of :func:`~kdfaces.io.obj.vertex_normals`,
+  those of the OBJ and glTF exports, of each frame's positions) at the whole-number time codes
+  ``frame_start + (t_f − t_0) · fps``; ``timeCodesPerSecond = framesPerSecond = fps``, start/end time codes the
+  shot's first and last frame, up axis Y, ``metersPerUnit`` = the unit written (1 for metres). The layer's
+  ``customLayerData["kdfaces"]`` holds ``frameStart`` and ``startTimeS`` (t_0), so :func:`read_usd` gives the
+  shot's own times back.
+* **PC2** (Blender's MeshCache modifier, ``MOD_meshcache_pc2.cc``): a little-endian 32-byte header
   ``char[12] "POINTCACHE2\\0", int32 version = 1, int32 points, float32 start frame, float32 sampling (frames
   between samples), int32 samples``, then float32 xyz per point per sample. PC2 has no faces and needs uniformly
-  spaced samples. Blender's modifier (default "Frame" time mode) shows sample *k* at scene frame *k* and ignores
-  the header's start, while a new Blender scene starts at frame 1: so the writer puts ``frame_offset`` (default 1)
-  copies of the first frame before it, and the header says start 0, sampling 1. The shot's first frame then plays
-  at scene frame 1 whatever its start time, and a reader that honours the header agrees.
+  spaced samples. The header's start is ``frame_start``. Blender's modifier in "Frame" time mode ignores the
+  header and shows sample ``frame · frame_scale − modifier.frame_start`` at a scene frame, so it plays the
+  convention with its *Frame Start* set to ``frame_start`` (what :mod:`kdfaces.blender.importer` sets up).
+  A PC2 holds the vertices of one mesh in one order: the rig's (OBJ, FBX, USD) or, with ``vertex_map``, the
+  glTF's (:func:`~kdfaces.io.gltf.gltf_vertex_map`: the rig's vertices, then the copies split at UV seams).
 
 Both formats store float32; writers go through :class:`~kdfaces.io.rigfiles.atomic_path`, so a failed write
 leaves no file behind.
@@ -27,13 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..defaults import FRAME_START
 from ..errors import KDInputError, KDIOError, check_finite
 from .atomic import atomic_path
-from .obj import triangulate
+from .obj import triangulate, vertex_normals_frames
 
 __all__ = [
     "PointCache", "PC2_HEADER", "PC2_FRAME_OFFSET", "write_usd", "write_usd_chunks", "read_usd", "write_pc2",
-    "write_pc2_chunks", "PC2Writer", "USDWriter", "read_pc2", "infer_fps",
+    "write_pc2_chunks", "PC2Writer", "USDWriter", "read_pc2", "infer_fps", "usd_time_codes",
 ]
 
 PC2_HEADER = struct.Struct("<12siiffi")  # signature, version, points, start frame, sampling [frames], samples
@@ -82,6 +93,9 @@ class PointCache:
         polygon_counts, polygon_corners: the stored polygons (USD), or None.
         uvs: per-corner texture coordinates (Σ counts, 2) (USD primvar ``st``), or None.
         meters_per_unit: the unit the file stores (positions are converted to metres already).
+        frame_start: the scene frame of the first frame (USD: its time code; PC2: the header's start plus the
+            leading copies dropped).
+        normals: per-vertex unit normals (F, N, 3) (USD ``normals`` with vertex interpolation), or None.
     """
 
     positions: np.ndarray
@@ -92,6 +106,8 @@ class PointCache:
     polygon_corners: np.ndarray | None = None
     uvs: np.ndarray | None = None
     meters_per_unit: float = 1.0
+    frame_start: float = float(FRAME_START)
+    normals: np.ndarray | None = None
 
 
 def infer_fps(times, *, fps: float | None = None, where: str = "point cache") -> float:
@@ -132,7 +148,7 @@ def _check_cache(positions, times, faces, where: str):
 
 
 def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_name: str = "face",
-              polygons=None, uvs=None, unit_m: float = 1.0) -> Path:
+              polygons=None, uvs=None, unit_m: float = 1.0, frame_start: int = FRAME_START) -> Path:
     """Write a USD point cache (``.usd``/``.usdc`` binary, ``.usda`` text) atomically.
 
     Args:
@@ -145,6 +161,8 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         polygons: (counts (P,), corner vertex indices (Σ counts,)): the mesh's own polygons (quads stay quads).
         uvs: per-corner texture coordinates (Σ counts, 2), written as the face-varying primvar ``st``.
         unit_m: metres per stored unit (``metersPerUnit``; 0.01 writes centimetres).
+        frame_start: the time code (scene frame) of the first frame; frame k is at ``frame_start + (t_k − t_0) ·
+            fps``, a whole number for frames on the fps grid.
     """
     from pxr import Usd
 
@@ -152,17 +170,18 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
     if p.suffix not in (".usd", ".usda", ".usdc"):
         raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
     x, t, f = _check_cache(positions, times, faces, str(p))
-    stage, points_attr, extent_attr, codes = _usd_stage(p, Usd.Stage.CreateInMemory(), x.shape[1], t, f, fps=fps,
+    stage, attrs, codes, triangles = _usd_stage(p, Usd.Stage.CreateInMemory(), x.shape[1], t, f, fps=fps,
                                                          prim_name=prim_name, polygons=polygons, uvs=uvs,
-                                                         unit_m=unit_m)
-    _usd_samples(points_attr, extent_attr, codes, x, unit_m)
+                                                         unit_m=unit_m, frame_start=frame_start)
+    _usd_samples(attrs, codes, x, unit_m, triangles)
     with atomic_path(p) as tmp:
         _usd_export(p, lambda: stage.GetRootLayer().Export(str(tmp)))
     return p
 
 
 def write_usd_chunks(path, chunks, times, faces, *, num_vertices: int, fps: float | None = None,
-                     prim_name: str = "face", polygons=None, uvs=None, unit_m: float = 1.0) -> Path:
+                     prim_name: str = "face", polygons=None, uvs=None, unit_m: float = 1.0,
+                     frame_start: int = FRAME_START) -> Path:
     """:func:`write_usd` from ``chunks``, an iterable of consecutive (k, N, 3) blocks of positions [m] in frame
     order. A binary (``.usd``/``.usdc``) layer is saved after every chunk, which lets USD drop the samples already
     on disk, so memory stays bounded however long the take (a ``.usda`` text layer is held whole until saved).
@@ -170,7 +189,7 @@ def write_usd_chunks(path, chunks, times, faces, *, num_vertices: int, fps: floa
     (:class:`USDWriter` is the same file, pushed a block at a time.)
     """
     with USDWriter(path, times, faces, num_vertices=num_vertices, fps=fps, prim_name=prim_name, polygons=polygons,
-                   uvs=uvs, unit_m=unit_m) as w:
+                   uvs=uvs, unit_m=unit_m, frame_start=frame_start) as w:
         for block in chunks:
             w.write(block)
     return w.path
@@ -183,7 +202,7 @@ class USDWriter(_BlockWriter):
     exception and every frame of ``times`` (F,) [s] was written; otherwise nothing is left behind."""
 
     def __init__(self, path, times, faces, *, num_vertices: int, fps: float | None = None, prim_name: str = "face",
-                 polygons=None, uvs=None, unit_m: float = 1.0):
+                 polygons=None, uvs=None, unit_m: float = 1.0, frame_start: int = FRAME_START):
         p = self.path = Path(path)
         self.num_vertices = int(num_vertices)
         t = self.times = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -193,10 +212,12 @@ class USDWriter(_BlockWriter):
         self._faces = None if faces is None else np.asarray(faces, dtype=np.int64)
         if p.suffix not in (".usd", ".usda", ".usdc"):
             raise KDInputError(f"{p}: expected a .usd, .usda or .usdc file name")
-        self._stage_args = {"fps": fps, "prim_name": prim_name, "polygons": polygons, "uvs": uvs, "unit_m": unit_m}
+        self._stage_args = {"fps": fps, "prim_name": prim_name, "polygons": polygons, "uvs": uvs, "unit_m": unit_m,
+                            "frame_start": frame_start}
         self.unit_m = unit_m
         self.done = 0
         self._atomic = self._layer = self._stage = self._points = self._extent = self._codes = None
+        self._normals = self._triangles = None
 
     def __enter__(self) -> USDWriter:
         from pxr import Sdf, Usd
@@ -210,7 +231,7 @@ class USDWriter(_BlockWriter):
             except Exception as e:  # noqa: BLE001 - USD raises Tf.ErrorException
                 raise KDIOError(f"{p}: USD could not create the layer ({str(e).strip().splitlines()[-1]})") from None
             stage = Usd.Stage.Open(self._layer)
-            self._stage, self._points, self._extent, self._codes = _usd_stage(
+            self._stage, (self._points, self._extent, self._normals), self._codes, self._triangles = _usd_stage(
                 p, stage, self.num_vertices, self.times, self._faces, **self._stage_args)
         except BaseException as e:
             self._close(type(e))
@@ -220,7 +241,8 @@ class USDWriter(_BlockWriter):
     def write(self, block) -> None:
         """Append the next (k, N, 3) frames of positions [m] (a binary layer is saved after each block)."""
         p, x = self.path, _checked_block(self.path, block, self.done, self.num_vertices, len(self.times))
-        _usd_samples(self._points, self._extent, self._codes[self.done:self.done + len(x)], x, self.unit_m)
+        _usd_samples((self._points, self._extent, self._normals), self._codes[self.done:self.done + len(x)], x,
+                     self.unit_m, self._triangles)
         self.done += len(x)
         if p.suffix != ".usda":
             _usd_export(p, self._stage.GetRootLayer().Save)
@@ -234,15 +256,25 @@ class USDWriter(_BlockWriter):
             exc_type = type(e)
             raise
         finally:
-            self._stage = self._layer = self._points = self._extent = None
+            self._stage = self._layer = self._points = self._extent = self._normals = None
             if atomic is not None:
                 atomic.__exit__(exc_type, None, None)
 
 
 
-def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, polygons, uvs, unit_m):
+def usd_time_codes(times, fps: float, frame_start: float = FRAME_START) -> np.ndarray:
+    """Time codes (scene frames) of frame ``times`` [s], shape (F,): ``frame_start + (t − t_0) · fps``, snapped to
+    the whole number when within 1e-6 frames of one (so 7.000000000000001 is written 7)."""
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    codes = float(frame_start) + (t - t[0]) * float(fps)
+    whole = np.rint(codes)
+    return np.where(np.abs(codes - whole) <= 1e-6, whole, codes)
+
+
+def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, polygons, uvs, unit_m, frame_start):
     """Set up ``stage`` for a point cache of ``n`` points at times ``t``: the mesh, its topology and UVs, the stage
-    metadata. Returns (stage, points attribute, extent attribute, time codes)."""
+    metadata. Returns (stage, (points, extent, normals) attributes, time codes, triangles (M, 3) for the
+    normals)."""
     from pxr import Sdf, Tf, UsdGeom, Vt
 
     if p.suffix not in (".usd", ".usda", ".usdc"):
@@ -266,8 +298,12 @@ def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, poly
         raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
     if not Sdf.Path.IsValidIdentifier(prim_name):  # shot names like "render-test": "render_test"
         prim_name = Tf.MakeValidIdentifier(str(prim_name) or "mesh")
+    if isinstance(frame_start, bool) or not np.isfinite(frame_start) or int(frame_start) != frame_start:
+        raise KDInputError(f"{p}: frame_start: expected a whole scene frame number, got {frame_start!r}")
     rate = infer_fps(t, fps=fps, where=str(p))
-    codes = t * rate
+    codes = usd_time_codes(t, rate, frame_start)
+    layer = stage.GetRootLayer()
+    layer.customLayerData = {"kdfaces": {"frameStart": int(frame_start), "startTimeS": float(t[0])}}
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, float(unit_m))
     stage.SetTimeCodesPerSecond(rate)
@@ -283,19 +319,25 @@ def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, poly
         st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                      UsdGeom.Tokens.faceVarying)
         st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uvs, dtype=np.float32)))
-    return stage, mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), codes
+    normals = mesh.CreateNormalsAttr()
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    return stage, (mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), normals), codes, triangulate(counts, corners)
 
 
-def _usd_samples(points_attr, extent_attr, codes: np.ndarray, x: np.ndarray, unit_m: float) -> None:
-    """Time samples of points and extents: positions rounded to float32 metres, then converted to the unit."""
+def _usd_samples(attrs, codes: np.ndarray, x: np.ndarray, unit_m: float, triangles: np.ndarray) -> None:
+    """Time samples of points, extents and vertex normals: positions rounded to float32 metres, then converted to
+    the unit; normals of the stored (float32) positions."""
     from pxr import Usd, Vt
 
+    points_attr, extent_attr, normals_attr = attrs
     x32 = np.ascontiguousarray(np.asarray(x).astype(np.float32).astype(np.float64) / unit_m, dtype=np.float32)
     extents = np.stack([x32.min(axis=1), x32.max(axis=1)], axis=1)  # (k, 2, 3)
+    normals = vertex_normals_frames(x32, triangles).astype(np.float32)
     for k, code in enumerate(codes):
         tc = Usd.TimeCode(float(code))
         points_attr.Set(Vt.Vec3fArray.FromNumpy(x32[k]), tc)
         extent_attr.Set(Vt.Vec3fArray.FromNumpy(extents[k]), tc)
+        normals_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[k])), tc)
 
 
 def _usd_export(p: Path, save) -> None:
@@ -347,7 +389,13 @@ def read_usd(path, *, prim_path: str | None = None) -> PointCache:
     codes = np.asarray(attr.GetTimeSamples(), dtype=np.float64)
     samples = [attr.Get(float(c)) for c in codes] if len(codes) else [attr.Get()]
     if len(codes) == 0:
-        codes = np.zeros(1)
+        codes = np.array([float(stage.GetStartTimeCode())])
+    normals_attr = mesh.GetNormalsAttr()
+    normals = None
+    if normals_attr and normals_attr.HasValue() and mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex:
+        ns = [normals_attr.Get(float(c)) for c in codes]
+        if all(n is not None and len(n) == len(s) for n, s in zip(ns, samples, strict=True)):
+            normals = np.stack([np.asarray(n, dtype=np.float64) for n in ns])
     sizes = {len(s) for s in samples}
     if len(sizes) != 1:
         raise KDInputError(f"{p}: mesh {prim.GetPath()} changes vertex count over time ({sorted(sizes)}); "
@@ -356,35 +404,47 @@ def read_usd(path, *, prim_path: str | None = None) -> PointCache:
     unit = float(UsdGeom.GetStageMetersPerUnit(stage))
     x *= unit
     rate = float(stage.GetTimeCodesPerSecond())
-    return PointCache(positions=x, times=codes / rate, fps=float(stage.GetFramesPerSecond()), faces=faces,
-                      polygon_counts=counts, polygon_corners=corners, uvs=uvs, meters_per_unit=unit)
+    meta = stage.GetRootLayer().customLayerData.get("kdfaces")
+    try:  # written by write_usd: the shot's own times; any other stage: time code / timeCodesPerSecond
+        times = float(meta["startTimeS"]) + (codes - float(meta["frameStart"])) / rate
+    except (TypeError, KeyError, ValueError):
+        times = codes / rate
+    return PointCache(positions=x, times=times, fps=float(stage.GetFramesPerSecond()), faces=faces,
+                      polygon_counts=counts, polygon_corners=corners, uvs=uvs, meters_per_unit=unit,
+                      frame_start=float(codes[0]), normals=normals)
 
 
-#: Copies of the first frame a PC2 file starts with, so that Blender (which shows sample k at scene frame k and
-#: starts scenes at frame 1) plays the shot's first frame at frame 1.
-PC2_FRAME_OFFSET = 1
+#: Copies of the first frame a PC2 file starts with by default: none (the header's start is the scene frame of
+#: the first sample, :data:`~kdfaces.defaults.FRAME_START`, and the Mesh Cache modifier's Frame Start says the same).
+PC2_FRAME_OFFSET = 0
 
 
 def write_pc2(path, positions, times, *, fps: float | None = None, unit_m: float = 1.0,
-              frame_offset: int = PC2_FRAME_OFFSET) -> Path:
+              frame_offset: int = PC2_FRAME_OFFSET, frame_start: int = FRAME_START, vertex_map=None) -> Path:
     """Write a Blender PC2 point cache atomically (see the module docstring for the frame convention).
 
     Args:
         path: output ``.pc2`` file.
         positions: vertex positions [m], shape (F, N, 3).
         times: frame times [s], shape (F,), uniformly spaced (PC2 stores a fixed step).
-        fps: frames per second; inferred from ``times`` if None. The header holds start 0 and sampling
-            ``(t_1 − t_0) · fps`` frames (1 for one sample per frame).
+        fps: frames per second; inferred from ``times`` if None. The header holds sampling ``(t_1 − t_0) · fps``
+            frames (1 for one sample per frame).
         unit_m: metres per stored unit (0.01 writes centimetres).
-        frame_offset: copies of the first frame written before it (the shot's first frame plays at this frame).
+        frame_offset: copies of the first frame written before it (0; 1 suits a Mesh Cache modifier left at Frame
+            Start 0 with ``frame_start`` 1).
+        frame_start: the scene frame of the shot's first frame; the header's start is ``frame_start −
+            frame_offset``, the scene frame of the first stored sample.
+        vertex_map: optional (M,) vertex indices into N: the file stores ``positions[:, vertex_map]``, the
+            vertices of another mesh of the same rig (the glTF's: :func:`~kdfaces.io.gltf.gltf_vertex_map`).
     """
     x, t, _ = _check_cache(positions, times, None, str(path))
     return write_pc2_chunks(path, [x], t, num_vertices=x.shape[1], fps=fps, unit_m=unit_m,
-                            frame_offset=frame_offset)
+                            frame_offset=frame_offset, frame_start=frame_start, vertex_map=vertex_map)
 
 
 def write_pc2_chunks(path, chunks, times, *, num_vertices: int, fps: float | None = None, unit_m: float = 1.0,
-                     frame_offset: int = PC2_FRAME_OFFSET) -> Path:
+                     frame_offset: int = PC2_FRAME_OFFSET, frame_start: int = FRAME_START,
+                     vertex_map=None) -> Path:
     """:func:`write_pc2` from ``chunks``, an iterable of consecutive (k, N, 3) blocks of positions [m] in frame
     order (e.g. read one at a time from a bake's store), so a long take is never held whole in memory.
 
@@ -393,7 +453,8 @@ def write_pc2_chunks(path, chunks, times, *, num_vertices: int, fps: float | Non
     frame's times; the chunks must hold exactly F frames. (:class:`PC2Writer` is the same file, pushed a block at a
     time.)
     """
-    with PC2Writer(path, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m, frame_offset=frame_offset) as w:
+    with PC2Writer(path, times, num_vertices=num_vertices, fps=fps, unit_m=unit_m, frame_offset=frame_offset,
+                   frame_start=frame_start, vertex_map=vertex_map) as w:
         for block in chunks:
             w.write(block)
     return w.path
@@ -406,7 +467,7 @@ class PC2Writer(_BlockWriter):
     otherwise nothing is left behind. The bytes are those of :func:`write_pc2_chunks` (arguments as there)."""
 
     def __init__(self, path, times, *, num_vertices: int, fps: float | None = None, unit_m: float = 1.0,
-                 frame_offset: int = PC2_FRAME_OFFSET):
+                 frame_offset: int = PC2_FRAME_OFFSET, frame_start: int = FRAME_START, vertex_map=None):
         p = self.path = Path(path)
         t = self.times = np.asarray(times, dtype=np.float64).reshape(-1)
         check_finite(t, f"{p} frame times")
@@ -423,9 +484,19 @@ class PC2Writer(_BlockWriter):
             raise KDInputError(f"{p}: unit_m: expected a positive number of metres per unit, got {unit_m}")
         if isinstance(frame_offset, bool) or int(frame_offset) != frame_offset or frame_offset < 0:
             raise KDInputError(f"{p}: frame_offset: expected a whole number of frames ≥ 0, got {frame_offset}")
+        if isinstance(frame_start, bool) or not np.isfinite(frame_start) or int(frame_start) != frame_start:
+            raise KDInputError(f"{p}: frame_start: expected a whole scene frame number, got {frame_start!r}")
         self.num_vertices, self.unit_m, self.frame_offset = int(num_vertices), float(unit_m), int(frame_offset)
-        self._header = PC2_HEADER.pack(PC2_SIGNATURE, 1, self.num_vertices, 0.0, step * rate,
-                                       len(t) + self.frame_offset)
+        self.vertex_map = None
+        if vertex_map is not None:
+            m = np.asarray(vertex_map)
+            if m.ndim != 1 or len(m) == 0 or m.dtype.kind not in "iu" or m.min() < 0 or m.max() >= self.num_vertices:
+                raise KDInputError(f"{p}: vertex_map: expected a non-empty (M,) array of vertex indices in "
+                                   f"[0, {self.num_vertices})")
+            self.vertex_map = m.astype(np.int64)
+        points = self.num_vertices if self.vertex_map is None else len(self.vertex_map)
+        self._header = PC2_HEADER.pack(PC2_SIGNATURE, 1, points, float(frame_start) - self.frame_offset,
+                                       step * rate, len(t) + self.frame_offset)
         self.done = 0
         self._atomic = self._file = self._fh = None
 
@@ -446,6 +517,8 @@ class PC2Writer(_BlockWriter):
     def write(self, block) -> None:
         """Append the next (k, N, 3) frames of positions [m]."""
         p, x = self.path, _checked_block(self.path, block, self.done, self.num_vertices, len(self.times))
+        if self.vertex_map is not None:
+            x = x[:, self.vertex_map]
         out = (x.astype(np.float32).astype(np.float64) / self.unit_m).astype("<f4")
         try:
             if self.done == 0:
@@ -474,7 +547,8 @@ class PC2Writer(_BlockWriter):
 def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m: float = 1.0,
              frame_offset: int = PC2_FRAME_OFFSET) -> PointCache:
     """Read a PC2 file written by :func:`write_pc2`: the ``frame_offset`` leading copies are dropped and frame f is
-    at time ``f · sampling / fps`` [s] from the shot's first frame (PC2 does not store the shot's start time).
+    at time ``f · sampling / fps`` [s] from the shot's first frame (PC2 stores neither the shot's start time nor
+    its fps); ``frame_start`` is the header's start + ``frame_offset``.
 
     ``num_vertices``, if given, must match the file's point count (a cache for another mesh is an error);
     positions are multiplied by ``unit_m`` (metres per stored unit).
@@ -502,4 +576,5 @@ def read_pc2(path, *, fps: float = 25.0, num_vertices: int | None = None, unit_m
     x = x[frame_offset:] * unit_m
     rate = infer_fps(None, fps=fps, where=str(p))
     times = np.arange(len(x)) * float(sampling) / rate
-    return PointCache(positions=x, times=times, fps=rate, meters_per_unit=unit_m)
+    return PointCache(positions=x, times=times, fps=rate, meters_per_unit=unit_m,
+                      frame_start=float(start) + frame_offset)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import KDInputError
+from kdfaces.errors import KDInputError
 
 __all__ = ["BakeCancelled", "animation_table", "shot_table", "write_shot_file", "bake_shot", "mesh_cache_frame_start",
            "object_shot", "bake_object", "setup_mesh_cache", "export_object_shot", "set_scene_from_shot",
@@ -67,7 +67,7 @@ def animation_table(animation) -> dict:
     end and fps. Float values are written exactly (TOML keeps every bit of a float), so the shot file's animation
     evaluates to the same numbers. Raises :class:`KDInputError` for what the schema cannot say (a root translation,
     several head drives, drives with other shares, Hermite tangents)."""
-    from ..motion.joints import HEAD_CHAIN_SPLIT
+    from kdfaces.motion.joints import HEAD_CHAIN_SPLIT
 
     out = {"source": "keys", "fps": float(animation.fps), "start_s": float(animation.start_s),
            "end_s": float(animation.end_s), "strict": True}
@@ -161,9 +161,9 @@ def write_shot_file(path, rig, animation, *, dynamics: dict | None = None, const
     the same numbers (checked here before anything is written)."""
     import tomlkit
 
-    from ..io.atomic import atomic_path
-    from ..io.rigfiles import save_npz
-    from ..shots.shotfile import parse_shot
+    from kdfaces.io.atomic import atomic_path
+    from kdfaces.io.rigfiles import save_npz
+    from kdfaces.shots.shotfile import parse_shot
 
     p = Path(path)
     if p.suffix != ".toml":
@@ -195,8 +195,8 @@ def bake_shot(shot, path, *, kind: str = "pc2", cancel=None, unit_m: float = 1.0
     discards its temporary file (nothing appears at ``path``) and :class:`BakeCancelled` is raised.
     ``run_options`` go to :func:`~kdfaces.shots.run_shot`. Returns ``(path, run)``.
     """
-    from ..io.export import open_export
-    from ..shots.run import run_shot
+    from kdfaces.io.export import open_export
+    from kdfaces.shots.run import run_shot
 
     a = shot.animation
     writer = open_export(Path(path), a.frame_times, kind=kind, num_vertices=shot.rig.num_vertices, rig=shot.rig,
@@ -218,7 +218,7 @@ def mesh_cache_frame_start(scene_start_frame: int) -> float:
     :func:`~kdfaces.io.pointcache.write_pc2` at ``scene_start_frame`` (and shot frame k at start + k): in "Frame"
     time mode the modifier shows sample ``scene frame − frame_start``, and the writer puts
     :data:`~kdfaces.io.pointcache.PC2_FRAME_OFFSET` samples before shot frame 0."""
-    from ..io import pointcache
+    from kdfaces.io import pointcache
 
     return float(scene_start_frame - getattr(pointcache, "PC2_FRAME_OFFSET", 0))
 
@@ -263,7 +263,8 @@ def object_shot_table(obj, scene, *, constraints=None, rig_source: str = "rig.np
 def object_shot(obj, scene, *, constraints=None, path=None):
     """The object's :class:`~kdfaces.shots.Shot` (:func:`object_shot_table` parsed with the object's rig):
     what "Export shot file" writes, in memory. ``path`` names it in messages (default ``<object>.toml``)."""
-    from ..shots.shotfile import parse_shot
+    from kdfaces.shots.shotfile import parse_shot
+
     from .scene import object_rig
 
     table = object_shot_table(obj, scene, constraints=constraints)
@@ -285,8 +286,9 @@ def export_object_shot(obj, scene, path) -> Path:
 def setup_mesh_cache(obj, scene, path, *, name: str = "KD cache"):
     """Add (or reuse) ``obj``'s Mesh Cache modifier ``name`` playing the PC2 ``path``: format PC2, time mode
     "Frame" in scene time, the start frame that puts shot frame k at scene frame frame_start + k
-    (:func:`mesh_cache_frame_start`), the toolkit's y-up axes (file forward −Z, up +Y: :func:`scene.to_kd`'s map),
-    last in the stack. Returns the modifier."""
+    (:func:`mesh_cache_frame_start`), the toolkit's y-up axes (the modifier's forward +Z, up −Y: what turns the
+    file's points p into :func:`kdfaces.blender.scene.from_kd` (p), checked in tests/test_blender_ikd_bake.py), last
+    in the stack. Returns the modifier."""
     mod = obj.modifiers.get(name)
     if mod is None or mod.type != "MESH_CACHE":
         mod = obj.modifiers.new(name=name, type="MESH_CACHE")
@@ -296,8 +298,8 @@ def setup_mesh_cache(obj, scene, path, *, name: str = "KD cache"):
     mod.play_mode = "SCENE"
     mod.frame_start = mesh_cache_frame_start(int(scene.frame_start))
     mod.frame_scale = 1.0
-    mod.forward_axis = "NEG_Z"
-    mod.up_axis = "POS_Y"
+    mod.forward_axis = "POS_Z"
+    mod.up_axis = "NEG_Y"
     mod.deform_mode = "OVERWRITE"
     mod.interpolation = "LINEAR"
     mod.factor = 1.0
@@ -338,7 +340,7 @@ def set_scene_from_shot(scene, shot, *, start_frame: int | None = None) -> tuple
     """Set ``scene``'s fps (``render.fps``/``fps_base``: an integer rate exactly, else the nearest fraction with
     base 1.001 or the rate over 1000) and its frame range to the shot's: shot frame k at scene frame
     ``start_frame + k`` (default :data:`kdfaces.defaults.FRAME_START`). Returns the range."""
-    from .. import defaults
+    from kdfaces import defaults
 
     fps = float(shot.animation.fps)
     start = int(defaults.FRAME_START if start_frame is None else start_frame)

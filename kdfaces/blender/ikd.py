@@ -43,8 +43,8 @@ import json
 
 import numpy as np
 
-from .. import defaults
-from ..errors import KDInputError
+from kdfaces import defaults
+from kdfaces.errors import KDInputError
 
 try:  # the library functions work without Blender; the operators need it
     import bpy
@@ -73,7 +73,7 @@ def _bell(props: dict, where: str) -> dict:
     """``width_s``, ``curve``, ``falloff_m`` of a constraint table from custom properties ``kd_width_s``,
     ``kd_curve``, ``kd_falloff_m`` (defaults: :data:`~kdfaces.defaults.WIDTH_S`, :data:`~kdfaces.defaults.CURVE`,
     the shot file's)."""
-    from ..ikd.bases import BASIS_KINDS
+    from kdfaces.ikd.bases import BASIS_KINDS
 
     out = {"width_s": _number(props.get("kd_width_s", defaults.WIDTH_S), f"{where}: kd_width_s", positive=True),
            "curve": str(props.get("kd_curve", defaults.CURVE))}
@@ -279,8 +279,8 @@ def store_correction(obj, correction, *, key: str, report: dict | None = None) -
 def object_correction(obj):
     """The stored :class:`~kdfaces.ikd.corrections.Correction` of ``obj`` (coefficients solved from the stored
     slot values, so f(t) is the solve's), or None when it has none."""
-    from ..ikd import bases
-    from ..ikd.corrections import Correction, Slot
+    from kdfaces.ikd import bases
+    from kdfaces.ikd.corrections import Correction, Slot
 
     data = obj.get(CORRECTION_PROP)
     if data is None:
@@ -330,7 +330,7 @@ def clear_correction(obj) -> bool:
 def corrected_trajectory(obj, trajectory):
     """x_K + f: ``trajectory`` (the object's kinematic one) corrected by the stored correction, or ``trajectory``
     itself without one (or when its shape does not fit)."""
-    from ..ikd.corrections import CorrectedTrajectory
+    from kdfaces.ikd.corrections import CorrectedTrajectory
 
     corr = object_correction(obj)
     if corr is None or tuple(corr.state_shape) != tuple(trajectory.state_shape):
@@ -358,8 +358,9 @@ def solve_object(obj, scene, *, warm: bool = True, cancel=None, callback=None):
     :class:`~kdfaces.blender.bake.BakeCancelled` is raised); ``callback(sweep, errors)`` after each. Raises
     :class:`KDInputError` with one line when there is nothing to solve or the constraints are unreadable.
     """
-    from ..ikd.solver import solve_ikd
-    from ..resources import single_threaded_blas
+    from kdfaces.ikd.solver import solve_ikd
+    from kdfaces.resources import single_threaded_blas
+
     from .bake import BakeCancelled, object_shot
     from .scene import object_entry
 

@@ -284,7 +284,8 @@ def _anim_hash(obj, scene, shapes) -> bytes:
     curves = _action_fcurves(obj.data.shape_keys)
     for kb in shapes:
         fc = curves.get(f'key_blocks["{kb.name}"].value')
-        h.update(f"|{kb.name}|{kb.mute}|{kb.value!r}|".encode())
+        keyed = fc is not None and not fc.mute and len(fc.keyframe_points)  # a keyed value changes with the frame
+        h.update(f"|{kb.name}|{kb.mute}|{'keyed' if keyed else kb.value!r}|".encode())
         if fc is not None:
             h.update(_fcurve_bytes(fc))
     return h.digest()
@@ -474,7 +475,10 @@ def kd_state(obj, scene, frame: float | None = None) -> KDFrame:
     if window == "adaptive":
         window = float(adaptive_windows(e.system, e.trajectory, np.array([t])).window_s[0])
     x_k = e.trajectory.positions(np.array([t]))[0]
-    x_kd = x_k if window == 0 else simulate_kd(e.system, e.trajectory, np.array([t]), window)[0]
+    from .ikd import corrected_trajectory  # x_K + f with the object's stored IKD correction (x_K without one)
+
+    traj = corrected_trajectory(obj, e.trajectory)
+    x_kd = traj.positions(np.array([t]))[0] if window == 0 else simulate_kd(e.system, traj, np.array([t]), window)[0]
     dev = float(np.sqrt(((x_kd - x_k) ** 2).sum(axis=1)).max())
     return KDFrame(frame=f, time_s=t, window_s=float(window), x_kd=x_kd, x_k=x_k,
                    ms=(time.perf_counter() - t0) * 1e3, deviation_m=dev)

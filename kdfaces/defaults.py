@@ -12,7 +12,7 @@ __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "JOINT_SETTLE_TIME_S", "JOINT_DAMPING_RATIO", "SHAPE_MATCHING_ALPHA",
     "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
     "CLUSTER_RINGS", "REGION_MARGIN_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
-    "FACE_REGION",
+    "FACE_REGION", "FACE_PROXY", "PROXY_ABOVE_VERTICES",
     "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
@@ -48,6 +48,13 @@ REGION_MARGIN_RINGS = 2
 #: What a face model simulates (:meth:`kdfaces.dynamics.FaceModel.from_rig`): "auto", the rig's moving region
 #: (the rest follows x_K exactly), or None for every vertex.
 FACE_REGION = "auto"
+#: Face KD on a proxy (:meth:`kdfaces.dynamics.FaceModel.from_rig`, :mod:`kdfaces.dynamics.proxy`): "auto" simulates
+#: a proxy and carries the dense mesh with it when the region has more than :data:`PROXY_ABOVE_VERTICES` non-rigid
+#: vertices; None: always the dense mesh.
+FACE_PROXY = "auto"
+#: "auto" proxies faces above this many simulated vertices: above the 27k production rigs, whose dense KD is 25 ms per
+#: state and whose tests are held to dense tolerances; the default head (4.8k) and its 19k subdivision stay dense.
+PROXY_ABOVE_VERTICES = 30_000
 #: Cluster rotation fit: "iterative" (Newton on SO(3), warm-started; matches "svd3" within ε/100, several times
 #: faster) or "svd3"; and the iterative fit's Newton iterations per step.
 ROTATION = "iterative"

@@ -15,6 +15,7 @@ every other vertex follows x_K exactly, at no cost per step. ε and the diameter
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,6 +112,13 @@ class FaceModel:
         rigid: vertices that follow x_K exactly (rigid parts: teeth, eyes), shape (N,), bool, or None (none).
         region: the simulated vertices, sorted indices (R,) int64, or None (every vertex). The others follow x_K
             exactly and cost nothing per step; clusters hold region vertices only. Per-vertex arrays stay (N,).
+        embedding: None, or W (N, R) scipy CSR when the region is a proxy of the dense face
+            (:mod:`kdfaces.dynamics.proxy`): every vertex is observed as x_K + W (x_region − x_K,region), so the
+            dense mesh is carried by the simulated proxy (identity rows on the region, zero rows for vertices that
+            follow x_K). :class:`~kdfaces.dynamics.FaceSystem` on such a model is a
+            :class:`~kdfaces.dynamics.proxy.ProxyFaceSystem`.
+        proxy_faces: the proxy's triangles (G, 3) int64 in the rig's vertex numbering, with ``embedding`` (else
+            None).
     """
 
     mass: np.ndarray
@@ -126,6 +134,8 @@ class FaceModel:
     rotation_iterations: int = defaults.ROTATION_ITERATIONS
     rigid: np.ndarray | None = None
     region: np.ndarray | None = None
+    embedding: sp.csr_matrix | None = None
+    proxy_faces: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.mass)
@@ -155,6 +165,16 @@ class FaceModel:
             if not inside[self.clusters.members].all():
                 raise KDInputError("clusters: expected region vertices only (vertices outside the region follow "
                                    "x_K and are not simulated)")
+        if self.embedding is not None:
+            shape = (n, 0 if self.region is None else len(self.region))
+            if self.region is None or not sp.issparse(self.embedding) or self.embedding.shape != shape:
+                raise KDInputError(f"embedding: expected W of shape (N, R) = {shape} with a region (the proxy), got "
+                                   f"{getattr(self.embedding, 'shape', None)}")
+
+    @property
+    def proxy(self) -> bool:
+        """Whether the model simulates a proxy and carries the dense mesh with it (:attr:`embedding`)."""
+        return self.embedding is not None
 
     @property
     def rigid_mask(self) -> np.ndarray:
@@ -251,13 +271,19 @@ class FaceModel:
     diameter = renamed_attribute("diameter_m")
 
     @classmethod
-    def from_rig(cls, rig, *, region=defaults.FACE_REGION, **kwargs) -> FaceModel:
+    def from_rig(cls, rig, *, region=defaults.FACE_REGION, proxy=defaults.FACE_PROXY, **kwargs) -> FaceModel:
         """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments).
 
         ``region``: "auto" (default) simulates the rig's moving region (:func:`kdfaces.rig.region.moving_region`:
         the vertices its shapes move or its head chain skins, plus a margin; a rig with neither simulates every
         vertex), None every vertex, or a (N,) bool mask or vertex indices. On a head-and-neck rig (the default
         head) "auto" is every vertex.
+
+        ``proxy`` (:mod:`kdfaces.dynamics.proxy`): "auto" (default) simulates a proxy of
+        :data:`~kdfaces.dynamics.proxy.AUTO_PROXY_VERTICES` vertices and carries the dense mesh with it when the
+        region has more than :data:`kdfaces.defaults.PROXY_ABOVE_VERTICES` non-rigid vertices (else, and with
+        None, the dense mesh itself, as before); an integer: a proxy of about that many vertices; or a
+        :class:`~kdfaces.dynamics.proxy.FaceProxy` built beforehand.
         """
         if isinstance(region, str):
             if region != "auto":
@@ -265,7 +291,9 @@ class FaceModel:
             from ..rig.region import moving_region
 
             region = moving_region(rig) if rig.num_shapes or rig.skeleton is not None else None
-        return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
+        if proxy is None:
+            return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
+        return _proxy_model(cls, rig, region, proxy, kwargs)
 
 
 def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float, rings: int,
@@ -289,6 +317,58 @@ def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float
     cl = ring_clusters(sub, r, rings=rings, centers=centers)
     return Clusters.from_matrix(sp.csr_matrix((np.ones(len(cl.members), np.float32), region[cl.members], cl.offsets),
                                               shape=(cl.num_clusters, n)))
+
+
+def _mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Mean triangle edge length [m] of the mesh (each interior edge counted twice)."""
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    return float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).mean())
+
+
+def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
+    """:meth:`FaceModel.from_rig` with a proxy (``proxy``: "auto", a vertex count or a FaceProxy; "auto" below
+    the threshold: the dense model)."""
+    from .proxy import AUTO_PROXY_VERTICES, FaceProxy, build_proxy
+
+    n = rig.num_vertices
+    reg = _region(region, n)
+    simulated = np.ones(n, dtype=bool) if reg is None else np.isin(np.arange(n), reg)
+    rigid = _mask(kwargs.get("rigid"), n)
+    if rigid is not None:
+        simulated &= ~rigid
+    if isinstance(proxy, str):
+        if proxy != "auto":
+            raise KDInputError(f"proxy: expected 'auto', None, a vertex count or a FaceProxy, got {proxy!r}")
+        if int(simulated.sum()) <= defaults.PROXY_ABOVE_VERTICES:
+            return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
+        proxy = AUTO_PROXY_VERTICES
+    if isinstance(proxy, FaceProxy):
+        px = proxy
+        if px.weights.shape[0] != n:
+            raise KDInputError(f"proxy: built for a rig of {px.weights.shape[0]} vertices, this one has {n}")
+    else:
+        px = build_proxy(rig.neutral, rig.faces, simulated, proxy, rig.deltas)
+    kwargs = dict(kwargs)
+    mass = kwargs.pop("mass", None)
+    density = kwargs.pop("areal_density_kg_m2", kwargs.pop("areal_density", defaults.AREAL_DENSITY_KG_M2))
+    if mass is None:  # the dense mesh's lumped masses (as create), the proxy's vertices standing for W^T m
+        if not (np.isfinite(density) and density > 0):
+            raise KDInputError(f"areal_density_kg_m2: expected positive kg/m², got {density}")
+        a = vertex_areas(rig.neutral, rig.faces)
+        m = np.where(a > 0, a, a[a > 0].mean() if (a > 0).any() else 1.0) * density
+    else:
+        m = _per_vertex(mass, n, "mass")
+    m = np.array(m, dtype=np.float64)
+    m[px.vertices] = px.weights.T @ m
+    # shape-matching clusters as wide on the proxy as on the dense mesh: ``rings`` counts dense mesh rings, scaled by
+    # the ratio of the meshes' mean edge lengths (a 2-ring dense cluster is a 1-ring cluster of a 3× coarser proxy)
+    rings = int(kwargs.pop("rings", defaults.CLUSTER_RINGS))
+    kwargs["rings"] = max(1, int(round(rings * _mean_edge(rig.neutral, rig.faces)
+                                       / _mean_edge(rig.neutral, px.dense_faces))))
+    model = cls.create(rig.neutral, px.dense_faces, mass=m, region=px.vertices, **kwargs)
+    v = rig.neutral if reg is None else rig.neutral[reg]  # ε and the diameter of §5.2: the dense face's
+    diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    return dataclasses.replace(model, diameter_m=diameter, embedding=px.weights, proxy_faces=px.dense_faces)
 
 
 FaceModel.__init__ = renamed_kwargs(diameter="diameter_m")(FaceModel.__init__)

@@ -293,6 +293,13 @@ class FaceSystem:
             compute the same step (the tests hold them to float32 round-off of each other).
     """
 
+    def __new__(cls, model=None, *args, **kwargs):
+        if cls is FaceSystem and getattr(model, "embedding", None) is not None:  # a proxy model (#29)
+            from .proxy import ProxyFaceSystem
+
+            cls = ProxyFaceSystem
+        return super().__new__(cls)
+
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = defaults.THREADS, check_every: int = 16,
                  blowup_factor: float = 10.0, max_bake_bytes: int = 512 << 20, kernels: str | None = None):
         init_warp()  # quietly, unless the user started Warp first

@@ -232,3 +232,34 @@ def test_demo_hat_never_enters_the_head():
             assert np.array_equal(state.x, ref.x)
         if len(colliders) == 2:
             assert steps_on_contact > 0  # the floor did press on the brim
+
+
+def test_broad_phase_exact_fallback_clears_gaps_finer_than_its_grid():
+    """The distance grid's bound loses up to h√3/2 (h the spacing); below the grid's resolution the broad phase
+    bounds a triangle by its centroid's exact distance less its radius (:func:`kdfem.fem.contact._surface_bound`).
+    Against a plane y = 0 the exact distance of a triangle above it is its lowest corner's height (closed form): the
+    bound never exceeds it, and with the exact fallback it decides a 4 mm gap under a 9 mm grid, which the grid
+    alone cannot (its error 7.8 mm is larger than the gap)."""
+    from kdfem.fem.contact import DistanceGrid, _surface_bound
+
+    floor = _plane(0.2)
+    h = 0.009
+    grid = DistanceGrid(floor.rest_vertices, floor.faces, h, 0.05)
+    rng = np.random.default_rng(3)
+    for gap in (0.002, 0.004, 0.01):
+        # 40 triangles of ~8 mm edges, tilted at random, lowest corner at height gap
+        c = rng.uniform(-0.1, 0.1, (40, 1, 3)) * [1, 0, 1]
+        T = c + rng.normal(scale=0.005, size=(40, 3, 3))
+        T[:, :, 1] += gap - T[:, :, 1].min(axis=1, keepdims=True)
+        for levels in (0, 2):
+            lb = _surface_bound(grid, T, margin_m=0.0015, r_stop_m=0.5 * h, exact_levels=levels)
+            assert lb <= gap + 1e-12
+        grid_only = _surface_bound(grid, T, margin_m=0.0015, r_stop_m=0.5 * h, exact_levels=0)
+        exact = _surface_bound(grid, T, margin_m=0.0015, r_stop_m=0.5 * h, exact_levels=2)
+        assert exact >= grid_only - 1e-12
+        if gap == 0.004:
+            assert grid_only <= 0.0015 < exact  # only the exact fallback proves the gap exceeds 1.5 mm
+        if gap == 0.01:
+            assert grid_only > 0.0015 and exact > 0.0015  # the grid decides a 10 mm gap by itself
+    q = rng.uniform(-0.1, 0.1, (50, 3))
+    assert np.allclose(grid.exact_distance(q), np.abs(q[:, 1]), atol=1e-12)

@@ -13,17 +13,29 @@ The scene
    the lintel minus a margin, by active-set rounds (:mod:`kdfaces.ikd.clearance`);
 4. checks the result independently: a fresh hat system recomputes every KD state of the pass, one by one.
 
+**Colliders** (on by default, :data:`kdfaces.defaults.HAT_COLLIDERS`; ``kdfem door --no-colliders``): the hat's KD
+system has the head as a collider (minus the hat's rest footprint), so the KD and IKD passes are simulated with
+contact; the door frame's lintel is a collider too (:func:`kdfem.geometry.colliders.lintel_collider`, a closed box)
+in the independent check: the fresh system of step 4 has the head and the lintel, and a full simulation with contact
+of the IKD-corrected walk is run to the end of the pass, every step checked by ipctk for its distance to the lintel
+and for intersections (:func:`kdfem.geometry.colliders.contact_report`), against the clearance the IKD solve reports.
+The uncorrected pass is not simulated against the lintel: it is the hit IKD removes (its states are checked against
+the lintel, and intersect it); a touch-free corrected pass never activates the lintel's barrier, so its KD states
+with the lintel are the contact-free ones bit for bit.
+
 The shot file's format, its validation and the work check before anything is built: :mod:`kdfem.scenes.door_shot`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from kdfaces import defaults
 from kdfaces.errors import KDInputError
 
 from .door_shot import DOOR_MAX_STEPS, DOOR_SHOT, DoorShot, check_door_memory, check_door_work, load_door_shot
@@ -60,6 +72,8 @@ class DoorScene:
         points: (V, 4) tet-corner indices and (V, 4) barycentric weights of the render surface's vertices.
         tip: the surface vertex used as the tip; window_s, step_s: KD window and step [s].
         where: the shot file, for messages.
+        colliders: the door's colliders (the head, then the lintel; empty without colliders): ``system`` has the
+            head, the independent check all of them.
     """
 
     shot: DoorShot
@@ -72,6 +86,7 @@ class DoorScene:
     window_s: float
     step_s: float
     where: str = "door shot"
+    colliders: list = dataclasses.field(default_factory=list)
 
     def surface(self, X: np.ndarray) -> np.ndarray:
         """Render-surface points (..., V, 3) [m] of node positions (..., N, 3)."""
@@ -119,9 +134,10 @@ def _hat_system(shot: DoorShot, rig, base: Path, cache_dir):
     return HatSystem(model, embedding=emb, threads=2), f, (mesh.tets[emb.tet], emb.weights)
 
 
-def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None, where: str = "door shot"
-                     ) -> DoorScene:
-    """The rig, the hat's KD system and the walking joint trajectory of a door shot.
+def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None, where: str = "door shot",
+                     with_colliders: bool = defaults.HAT_COLLIDERS) -> DoorScene:
+    """The rig, the hat's KD system and the walking joint trajectory of a door shot; ``with_colliders``: the hat's
+    system has the head as a collider, and the scene's ``colliders`` add the lintel (module docstring).
 
     The work (:func:`check_door_work`) is checked first, and the memory the run's arrays over every frame will take
     once the hat is built, before any of them is allocated; errors name ``where`` (the shot file) and the field."""
@@ -143,9 +159,16 @@ def build_door_scene(shot: DoorShot, base: Path = Path("."), *, cache_dir=None, 
     system, faces, points = _hat_system(shot, rig, base, cache_dir)
     check_door_memory(shot, len(joints.frame_times), system.model.mesh.num_nodes, len(points[0]), where)
     rest_surface = np.einsum("vkd,vk->vd", system.rest_equilibrium[points[0]], points[1])
+    colliders = []
+    if with_colliders:
+        from ..fem.system import HatSystem
+        from ..geometry.colliders import hat_colliders
+
+        colliders = hat_colliders(system, rig, door=shot.door)
+        system = HatSystem(system.model, embedding=system.embedding, threads=system.threads, colliders=colliders[:1])
     return DoorScene(shot=shot, rig=rig, system=system, surface_faces=np.asarray(faces), joints=joints,
                      points=points, tip=int(np.argmax(rest_surface[:, 1])), window_s=shot.kd.window_s,
-                     step_s=shot.kd.step_s, where=where)
+                     step_s=shot.kd.step_s, where=where, colliders=colliders)
 
 
 def _pass_interval(scene: DoorScene, chunk: int = 64) -> tuple[float, float]:
@@ -269,11 +292,19 @@ def _constraints(scene: DoorScene, pass_s, kd_pass):
 
 
 def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie_fps: float | None = None,
-             progress: bool = False) -> dict:
+             progress: bool = False, with_colliders: bool = defaults.HAT_COLLIDERS, export=(),
+             export_unit: str = "m") -> dict:
     """Run a door shot (default :data:`DOOR_SHOT`) and write its outputs to ``out``: filmstrip_door.png,
     clearance.png, corrections.png, movie.mp4 (unless ``movie`` is False or the shot's output.movie is) and
     summary.json. ``movie_fps`` [1/s] overrides the shot's rate of the movie and the over-time plots. Returns the
-    summary."""
+    summary.
+
+    ``with_colliders`` (module docstring): the head and the lintel as colliders, and ``summary.json``'s ``contact``
+    (per collider: ipctk's minimum distance and intersections of the uncorrected pass, of the independent check's
+    KD states and of every step of the full simulation with contact of the corrected walk; the cost of a KD state
+    with the colliders against without). ``export``: point-cache kinds (``"usd"``, ``"usda"``, ``"pc2"``) of the
+    hat's render surface before and after IKD (``hat_kd``, ``hat_ikd``) and the head before and after
+    (``head``, ``head_ikd``) at the movie rate, in metres or (``export_unit="rig"``) the rig's unit."""
     from kdfaces.ikd.solver import solve_ikd
     from kdfaces.io.summary import write_summary
     from kdfaces.kd import simulate_kd
@@ -298,8 +329,9 @@ def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie
                        max_iterations=solver.max_iterations, max_rounds=solver.max_rounds)
     corrected = result.trajectory
 
-    # independent check: a fresh system, every KD state of the pass simulated on its own
-    fresh = HatSystem(system.model, embedding=system.embedding)
+    # independent check: a fresh system (with every collider: the head and the lintel), every KD state of the pass
+    # simulated on its own
+    fresh = HatSystem(system.model, embedding=system.embedding, colliders=scene.colliders or None)
     t0 = time.perf_counter()
     X_after = np.concatenate([simulate_kd(fresh, corrected, [t], window, step_s=h) for t in pass_t])
     check_s = time.perf_counter() - t0
@@ -366,6 +398,21 @@ def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie
                                   {"kinematic": (joints, K_movie), "KD before IKD": (joints, B_movie),
                                    "KD after IKD": (corrected, A_movie)}, fps=fps / stride, progress=progress))
     rounds_hist = result.extra.get("round_histories", [result.history])
+    contact = (_contact_summary(scene, fresh, corrected, pass_s, pass_t, X_before, X_after, check_s,
+                                float(clearance_after.min())) if scene.colliders else None)
+    if export:
+        from kdfaces.io.export import export_trajectory
+
+        unit = scene.rig.source_unit_m if export_unit == "rig" else 1.0
+        heads_movie = {"head": scene.head(joints.evaluate(t_movie, 0)[0], t_movie),
+                       "head_ikd": scene.head(corrected.evaluate(t_movie, 0)[0], t_movie)}
+        for kind in dict.fromkeys(export):
+            for name, X in (("hat_kd", B_movie), ("hat_ikd", A_movie)):
+                outputs.append(export_trajectory(out, scene.surface(X), t_movie, kind=kind, faces=scene.surface_faces,
+                                                 fps=fps / stride, name=name, unit_m=unit))
+            for name, P in heads_movie.items():
+                outputs.append(export_trajectory(out, P, t_movie, kind=kind, fps=fps / stride, name=name,
+                                                 rig=scene.rig, unit_m=unit))
     summary = {
         "name": parsed.name,
         "door": {"lintel_y_m": lintel, "front_z_m": parsed.door.front_z_m, "depth_m": parsed.door.depth_m,
@@ -400,5 +447,71 @@ def run_door(out, *, shot=None, cache_dir=None, movie: bool | None = None, movie
                      "frames_checked": int(unchanged.sum())},
         "outputs": [str(p.relative_to(out)) for p in outputs],
     }
+    if contact is not None:
+        summary["contact"] = contact
     write_summary(out, summary)
     return summary
+
+
+def _contact_summary(scene: DoorScene, fresh, corrected, pass_s, pass_t, X_before, X_after, check_s: float,
+                     clearance_after_m: float) -> dict:
+    """``summary.json``'s ``contact`` of a door run with colliders (:func:`run_door`): ipctk's checks
+    (:func:`~kdfem.geometry.colliders.contact_report`) of the uncorrected pass ``X_before`` and of the independent
+    check's states ``X_after`` (T, N, 3) [m] at ``pass_t`` (T,) [s], and of every step of the full simulation with
+    contact (``fresh``: the head and the lintel) of the ``corrected`` walk from 0 to the end of the pass; the lintel's
+    ipctk distance against the IKD clearance ``clearance_after_m`` [m]; the KD-state cost with the colliders against
+    a collider-free system on the same states (a few of the pass)."""
+    from kdfaces.kd import simulate_full, simulate_kd
+
+    from ..fem.system import HatSystem
+    from ..geometry.colliders import contact_report
+
+    system, h, window = scene.system, scene.step_s, scene.window_s
+    steps = np.round(np.arange(0.0, pass_s[1] + 0.5 * h, h), 10)
+    def contact_steps():  # member-steps any of the fresh system's steppers took on the contact path
+        return sum(st.contact_steps for st in fresh._steppers.values())
+
+    before_steps = contact_steps()
+    t0 = time.perf_counter()
+    full = np.asarray(simulate_full(fresh, corrected, steps, step_s=h))
+    full_s = time.perf_counter() - t0
+    full_contact_steps = contact_steps() - before_steps
+    cols = scene.colliders
+    rep_full = contact_report(system, cols, corrected, steps, full)
+    rep_after = contact_report(system, cols, corrected, pass_t, X_after)
+    rep_before = contact_report(system, cols[1:], scene.joints, pass_t, X_before)  # the would-be hit: the lintel
+    # cost: a KD state with the colliders against without, on a few states of the pass (both systems warm)
+    # (the head alone: the KD and IKD system; the head and the lintel: the independent check), two states of the
+    # pass around t_i, each system warm (the free one warmed on a third state)
+    k = int(np.argmin(np.abs(pass_t - 0.5 * (pass_t[0] + pass_t[-1]))))
+    sub = pass_t[max(0, k - 1):k + 1]
+    free = HatSystem(system.model, embedding=system.embedding)
+    simulate_kd(free, corrected, pass_t[:1], window, step_s=h)
+    timing, states = {}, {}
+    for name, sy in (("without", free), ("head", system), ("with", fresh)):
+        t0 = time.perf_counter()
+        states[name] = simulate_kd(sy, corrected, sub, window, step_s=h)
+        timing[name] = (time.perf_counter() - t0) / len(sub)
+    lintel = rep_full["lintel"]["min_distance_m"]
+    dhat = float(fresh.contact.dhat_m)
+
+    def clear(r):  # no intersection and farther than d-hat (None: farther than the report's within_m)
+        return r["intersections"] == 0 and (r["min_distance_m"] is None or r["min_distance_m"] > dhat)
+    return {
+        "colliders": [c.name for c in cols],
+        "kd_system_colliders": [c.name for c in system.contact.colliders],
+        "before_ikd": {"lintel": rep_before["lintel"]},
+        "after_ikd_kd_states": rep_after,
+        "after_ikd_full_simulation": {"steps": len(steps), "wall_s": full_s, "contact_steps": full_contact_steps,
+                                      **rep_full},
+        "independent_check_contact_steps": int(before_steps),
+        "ikd_clearance_after_m": clearance_after_m,
+        "lintel_min_distance_full_m": lintel,
+        "lintel_min_distance_kd_m": rep_after["lintel"]["min_distance_m"],
+        "touch_free": bool(clear(rep_full["lintel"]) and clear(rep_after["lintel"])),
+        "dhat_m": dhat,
+        "ms_per_state_with": 1e3 * timing["with"], "ms_per_state_without": 1e3 * timing["without"],
+        "cost_ratio": timing["with"] / timing["without"],
+        "cost_ratio_head": timing["head"] / timing["without"],
+        "cost_states_same_as_without": bool(np.array_equal(states["with"], states["without"])),
+    }

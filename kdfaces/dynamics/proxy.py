@@ -266,20 +266,24 @@ class ProxyFaceSystem(FaceSystem):
 
     def observe(self, state) -> np.ndarray:
         """Dense vertex positions of every member [m], (B, N, 3) float64: the proxy's vertices from the state, the
-        carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K."""
-        full = super().observe(state)
-        if not len(self._carried):
-            return full
+        carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64, the trajectory's own
+        values). One pass of x_K over the N vertices per member (blend + skin) and one sparse product."""
+        self._check(state)
+        x = np.concatenate([ch.x.numpy() for ch in state.chunks])  # float32 (B, P, 3)
         traj = state.bake.trajectory if state.bake is not None else state.trajectory
         t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
-        view = self._view(traj)
-        p = len(self._region)
+        full = np.empty((len(x), self.model.num_vertices, 3))
+        p, region, carried = len(self._region), self._region, self._carried
         for i in range(0, len(t), 32):
-            xk = scan_trajectory(view, t[i:i + 32], 0)[0]  # x_K at the proxy's vertices, (b, P, 3)
-            d = full[i:i + 32, self._region] - xk
-            b = len(d)
-            moved = (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3).transpose(1, 0, 2)
-            full[i:i + 32, self._carried] += moved
+            xk = scan_trajectory(traj, t[i:i + 32], 0)[0]  # x_K of every vertex, (b, N, 3)
+            xp = x[i:i + 32].astype(np.float64)
+            if len(carried):
+                d = xp - xk[:, region]
+                b = len(d)
+                xk[:, carried] += (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3) \
+                    .transpose(1, 0, 2)
+            xk[:, region] = xp
+            full[i:i + 32] = xk
         return full
 
     def simulated_kinematic(self, trajectory, times):

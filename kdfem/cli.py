@@ -23,7 +23,20 @@ def _demo(args) -> dict:
     check_count(args.offset_grid, "--offset-grid", minimum=0)
     return run_hat_demo(args.out, rig=args.rig, window_s=args.window, step_s=args.step,
                         edge_length_fac=args.edge_length_fac, frame_stride=args.frame_stride, threads=args.threads,
-                        offset_grid=args.offset_grid, cache_dir=user_cache_dir() / "tets")
+                        offset_grid=args.offset_grid, cache_dir=user_cache_dir() / "tets",
+                        with_colliders=args.with_colliders, export=args.export, export_unit=args.export_unit)
+
+
+def _add_scene_options(parser) -> None:
+    """``--no-colliders`` and ``--export`` (:func:`kdfaces.io.export.add_export_option`) of the hat's scenes (their
+    KD and IKD trajectories: ``kdfem demo`` hat_kd and face, ``door`` hat_kd, hat_ikd, head and head_ikd,
+    ``follow`` hat_kd and face_kd)."""
+    from kdfaces.io.export import add_export_option
+
+    parser.add_argument("--no-colliders", dest="with_colliders", action="store_false",
+                        default=defaults.HAT_COLLIDERS,
+                        help="simulate the hat without colliders (default: the head is one, and the door's lintel)")
+    add_export_option(parser)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="N x N hat-tip targets of the Fig. 9 analog, IKD through the head posture "
                            "(default 3, about 40 s; 0 skips it)")
     demo.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    _add_scene_options(demo)
     demo.set_defaults(func=_demo)
     _add_window_parser(sub)
     door = sub.add_parser("door", help="the floppy hat under the door: IK on the neck chain, IKD on posture, clearance")
@@ -55,10 +69,14 @@ def build_parser() -> argparse.ArgumentParser:
     door.add_argument("--out", default="kd-out/door", help="output folder (default kd-out/door)")
     door.add_argument("--no-movie", dest="movie", action="store_false", default=None, help="skip movie.mp4")
     door.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    _add_scene_options(door)
     door.set_defaults(func=_door)
     follow = sub.add_parser("follow", help="a sharp head turn on the skeletal KD neck (MuJoCo); face and hat ride it")
     follow.add_argument("--out", default="kd-out/follow", help="output folder (default kd-out/follow)")
+    follow.add_argument("--frame-stride", type=int, default=1,
+                        help="export every n-th frame of the shot (default 1)")
     follow.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    _add_scene_options(follow)
     follow.set_defaults(func=_follow)
     braid = sub.add_parser("braid", help="a braid flips over the shoulder with a head turn: KD with contact (§6.3)")
     braid.add_argument("--out", default="kd-out/braid", help="output folder (default kd-out/braid)")
@@ -76,7 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _follow(args) -> dict:
     from .scenes.follow import run_follow
 
-    return run_follow(args.out)
+    return run_follow(args.out, with_colliders=args.with_colliders, export=args.export,
+                      export_unit=args.export_unit, frame_stride=args.frame_stride)
 
 
 def _braid(args) -> dict:
@@ -88,7 +107,8 @@ def _braid(args) -> dict:
 def _door(args) -> dict:
     from .scenes.door import run_door
 
-    return run_door(args.out, shot=args.shot, movie=args.movie, progress=not args.json)
+    return run_door(args.out, shot=args.shot, movie=args.movie, progress=not args.json,
+                    with_colliders=args.with_colliders, export=args.export, export_unit=args.export_unit)
 
 
 def _window(args) -> dict:

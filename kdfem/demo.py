@@ -34,7 +34,8 @@ def _peaks(times: np.ndarray, dev: np.ndarray, *, count: int = 5, gap: float = 0
 def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WINDOW_S,
                  step_s: float = defaults.HAT_STEP_S,
                  edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC, frame_stride: int = 2,
-                 offset_grid: int = OFFSET_GRID_SIZE, threads: int = defaults.THREADS, cache_dir=None) -> dict:
+                 offset_grid: int = OFFSET_GRID_SIZE, threads: int = defaults.THREADS, cache_dir=None,
+                 with_colliders: bool = defaults.HAT_COLLIDERS, export=(), export_unit: str = "m") -> dict:
     """The default head nods and turns wearing the floppy hat: rigid | KD | reduced KD | full simulation.
 
     Writes ``out``/filmstrip_hat.png, kd_error_vs_full.png, reduced_error_vs_full.png and summary.json; returns the
@@ -52,6 +53,14 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     ``offset_grid`` N > 0 adds the Fig. 9 analog (:func:`~kdfem.scenes.offset_grid.hat_offset_grid`): the hat tip
     sent through the head posture to an N × N grid of targets, six iterations of the paper's update and of ours,
     ``ikd_offset_grid.png`` and ``summary.json``'s ``ikd.offset_grid`` (about N² × 4 s); 0 skips it.
+
+    ``with_colliders`` (default :data:`kdfaces.defaults.HAT_COLLIDERS`): the hat's KD system and its full simulation
+    have the head as a collider (:func:`kdfem.geometry.colliders.hat_colliders`: the head minus the hat's rest
+    footprint), and ``summary.json``'s ``contact`` checks every step of the full simulation and every KD state with
+    ipctk (:func:`kdfem.geometry.colliders.contact_report`: minimum distance, intersections), with the cost of a KD
+    state with the collider against without (a few frames, both systems warm). The reduced hat has no contact.
+    ``export``: point-cache kinds (``"usd"``, ``"usda"``, ``"pc2"``) of the hat's KD render surface (``hat_kd``) and
+    the head (``face``, the rig's x_K) at the evaluated frames, in metres or (``export_unit="rig"``) the rig's unit.
     """
     window, h = window_s, step_s
     from kdfaces.io.rigfiles import load_rig
@@ -73,9 +82,23 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     traj = KinematicTrajectory(rig, anim)
     system, surf, _ = default_hat_system(rig, edge_length_fac=edge_length_fac, cache_dir=cache_dir,
                                          threads=threads)
+    free = system
+    if with_colliders:
+        from .fem.system import HatSystem
+        from .geometry.colliders import hat_colliders
+
+        system = HatSystem(free.model, embedding=free.embedding, threads=threads,
+                           colliders=hat_colliders(free, rig))
     mesh = system.model.mesh
     times = anim.frame_times[:: frame_stride]  # every frame_stride-th frame: "fps" below is their rate
-    full = simulate_full(system, traj, times, step_s=h)
+    if with_colliders:  # every step of the full simulation, for the contact check; the frames among them
+        start = float(traj.start)
+        step_grid = np.round(start + h * np.arange(int(np.floor((float(times[-1]) - start) / h + 1e-9)) + 1), 10)
+        all_t = np.unique(np.concatenate([step_grid, np.round(times, 10)]))
+        full_all = simulate_full(system, traj, all_t, step_s=h)
+        full = full_all[np.searchsorted(all_t, np.round(times, 10))]
+    else:
+        full = simulate_full(system, traj, times, step_s=h)
     rigid = system.observe_kinematic(traj, times)
     adaptive = window == "adaptive"
     if window == "auto":  # §5.3
@@ -122,6 +145,35 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
         # one thread, always: the grid's numbers stay bit for bit whatever --threads says
         grid = hat_offset_grid(out / "ikd_offset_grid.png", size=offset_grid, threads=1)
         outputs.append(grid.pop("path"))
+    contact = None
+    if with_colliders:
+        from .geometry.colliders import contact_report
+
+        sub = times[_peaks(times, dev, count=4)]  # the cost: KD states with the collider against without
+        timing, states = {}, {}
+        w_sub = frame_windows if not adaptive else float(np.max(aw.window_s))
+        for name, sy in (("without", free), ("with", system)) * 2:  # the second (warm) run of each is kept
+            t0 = time.perf_counter()
+            states[name] = simulate_kd(sy, traj, sub, w_sub, step_s=h)
+            timing[name] = (time.perf_counter() - t0) / len(sub)
+        contact = {"colliders": [c.name for c in system.contact.colliders], "dhat_m": float(system.contact.dhat_m),
+                   "full_simulation": {"steps": len(all_t), **contact_report(system, system.contact.colliders, traj,
+                                                                             all_t, full_all)},
+                   "kd_states": contact_report(system, system.contact.colliders, traj, times, kd),
+                   "contact_steps": int(sum(st.contact_steps for st in system._steppers.values())),
+                   "ms_per_state_with": 1e3 * timing["with"], "ms_per_state_without": 1e3 * timing["without"],
+                   "cost_ratio": timing["with"] / timing["without"],
+                   "cost_states_same_as_without": bool(np.array_equal(states["with"], states["without"]))}
+    if export:
+        from kdfaces.io.export import export_trajectory
+
+        unit = rig.source_unit_m if export_unit == "rig" else 1.0
+        face = np.asarray(traj.positions(times), dtype=np.float64)
+        for kind in dict.fromkeys(export):
+            outputs.append(export_trajectory(out, system.surface(kd), times, kind=kind, faces=surf.faces,
+                                             fps=anim.fps / frame_stride, name="hat_kd", unit_m=unit))
+            outputs.append(export_trajectory(out, face, times, kind=kind, fps=anim.fps / frame_stride, name="face",
+                                             rig=rig, unit_m=unit))
     q = tet_quality(mesh)
     summary = {
         "hat": {"nodes": mesh.num_nodes, "tets": mesh.num_tets, "min_tet_volume_m3": q["min_tet_volume_m3"],
@@ -141,5 +193,7 @@ def run_hat_demo(out, *, rig="default", window_s: float | str = defaults.HAT_WIN
     }
     if grid is not None:
         summary["ikd"] = {"offset_grid": grid}
+    if contact is not None:
+        summary["contact"] = contact
     write_summary(out, summary)
     return summary

@@ -37,8 +37,8 @@ from kdfaces.window import AdaptiveWindows, impulse_responses, truncation_steps
 
 from ..fem.attachment import head_motion
 
-__all__ = ["modal_kicks", "modal_adaptive_windows", "contact_aware_windows", "ADAPTIVE_MODES", "NONLINEAR_MARGIN",
-           "CONTACT_BAND_DHAT"]
+__all__ = ["modal_kicks", "modal_adaptive_windows", "contact_aware_windows", "contact_pass", "ADAPTIVE_MODES",
+           "NONLINEAR_MARGIN", "CONTACT_BAND_DHAT", "CONTACT_PASS_STEPS"]
 
 #: Modes the adaptive bound sums over.
 ADAPTIVE_MODES = 12
@@ -124,6 +124,60 @@ def modal_adaptive_windows(system, trajectory, times=None, *, step_s: float | No
 CONTACT_BAND_DHAT = 10.0
 
 
+#: The plan's cheap pass steps this many KD steps at a time (:func:`contact_pass`).
+CONTACT_PASS_STEPS = 4
+
+
+def contact_pass(system, trajectory, times, *, step_s: float, steps_per_pass_step: int = CONTACT_PASS_STEPS,
+                 start_s: float | None = None) -> np.ndarray:
+    """The contact-aware plan's cheap pass: one sequential simulation of the shot with contact at a coarse step,
+    H = ``steps_per_pass_step`` × ``step_s`` [s] (the KD step), observed at ``times`` (T,) [s] (on the pass grid
+    ``start_s`` + k·H, increasing) → (T, N, 3) [m]. A pass step that the contact step refuses (a collider moving
+    through the object within one step, an inverted element) is retaken as two half steps, down to ``step_s``.
+
+    It rests on what the plan reads from it: where the object comes near a collider (contact intervals) and how far
+    it is from the carried rest shape when a contact ends (what the contact leaves behind). A larger implicit-Euler
+    step keeps both (the barrier and CCD keep the object out of the colliders at any step) while damping the fast
+    modes more, so the plan sizes its decay with the §5.3 margin and a contact band of 10 d̂; the full simulation
+    with contact stays the ground truth the tests compare KD against. Deterministic (the same bits every run)."""
+    from kdfaces.errors import SimulationBlowUpError
+
+    n = int(steps_per_pass_step)
+    if n < 1:
+        raise KDInputError(f"steps_per_pass_step: expected an integer ≥ 1, got {steps_per_pass_step}")
+    h = float(step_s)
+    H = n * h
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    s = float(head_motion(trajectory, joint=system.joint).start if start_s is None else start_s)
+    k_out = np.round((t - s) / H).astype(np.int64)
+    if (k_out < 0).any() or np.abs(s + k_out * H - t).max(initial=0.0) > 1e-9 * max(1.0, float(np.abs(t).max())) \
+            or (len(t) > 1 and not (np.diff(k_out) > 0).all()):
+        raise KDInputError(f"contact pass times: expected increasing times on the pass grid {s:g} + k·{H:g} s")
+    state = system.initial_state(trajectory, np.array([s]))
+
+    def advance(t0: float, dt: float) -> None:
+        keep = (state.x.copy(), state.v.copy(), None if state.v_prev is None else state.v_prev.copy(), state.steps,
+                list(state.precond))
+        try:
+            system.step(state, trajectory, np.array([t0]), dt)
+        except SimulationBlowUpError:
+            if dt <= h * (1 + 1e-9):
+                raise
+            state.x[:], state.v[:] = keep[0], keep[1]
+            state.v_prev, state.steps, state.precond = keep[2], keep[3], keep[4]
+            advance(t0, 0.5 * dt)
+            advance(t0 + 0.5 * dt, 0.5 * dt)
+
+    out = np.empty((len(t), *system.rest_equilibrium.shape))
+    k = 0
+    for i, ki in enumerate(k_out):
+        while k < ki:
+            advance(s + k * H, H)
+            k += 1
+        out[i] = system.observe(state)[0]
+    return out
+
+
 def _decay_envelope(basis, t_s: np.ndarray) -> np.ndarray:
     """max over modes of the free response envelope of a unit initial displacement after ``t_s`` (T,) [s]:
     e^(−λ t)/√(1 − ζ²) for an underdamped mode (λ = ζω), 2·e^(−λ_slow t) for an (over)critically damped one
@@ -138,8 +192,8 @@ def _decay_envelope(basis, t_s: np.ndarray) -> np.ndarray:
     return (amp[None, :] * np.exp(-lam[None, :] * t[:, None])).max(axis=1)
 
 
-def contact_aware_windows(system, trajectory, times, pass_positions, *, step_s: float | None = None,
-                          epsilon_m: float | None = None, start_s: float | None = None,
+def contact_aware_windows(system, trajectory, times, pass_positions=None, *, pass_times=None,
+                          step_s: float | None = None, epsilon_m: float | None = None, start_s: float | None = None,
                           modes: int = ADAPTIVE_MODES, margin: float = NONLINEAR_MARGIN,
                           band_m: float | None = None):
     """Per-frame KD windows that reach back past every contact event whose effect has not decayed below ε (issue
@@ -147,77 +201,102 @@ def contact_aware_windows(system, trajectory, times, pass_positions, *, step_s: 
     events a list of dicts (``start_s``, ``end_s``, ``left_behind_m``, ``decayed_s`` (None: not within the shot),
     ``window_start_s``: where windows that must remember it start).
 
-    The plan, computed once per shot from a **pass**: ``pass_positions`` (T, N, 3) [m], the object's node positions
-    at ``times`` (T,) [s] from one sequential simulation of the shot with contact (any step; the scene's run).
+    The plan, computed once per shot from a **pass**: ``pass_positions`` (P, N, 3) [m], the object's node positions
+    at ``pass_times`` (P,) [s] (default ``times``) from one sequential simulation of the shot with contact (any
+    step). None runs the cheap one, :func:`contact_pass`, on its own grid (every :data:`CONTACT_PASS_STEPS` KD
+    steps up to the last of ``times``): contact intervals need the pass densely, whatever frames are asked for.
 
-    1. Contact intervals: frames where the pass comes within ``band_m`` (default :data:`CONTACT_BAND_DHAT`·d̂) of a
-       collider (:meth:`~kdfem.fem.contact.ContactModel.min_distance`); an event is a run of such frames, starting
-       one frame early (it may begin between frames).
+    1. Contact intervals: frames where the pass, or the rest shape carried by the head (x_K: the kinematic
+       trajectory's own contacts), comes within ``band_m`` (default :data:`CONTACT_BAND_DHAT`·d̂) of a collider
+       (:meth:`~kdfem.fem.contact.ContactModel.min_distance`); an event is a run of such frames, starting one frame
+       early (it may begin between frames).
     2. What a contact leaves behind: D, the pass's deviation ‖x_pass − x_K‖ (the norm ε measures; x_K the rest
        equilibrium carried by the head) at the event's last frame. It bounds the state the contact hands over to
        contact-free dynamics, which a window starting after the event would not know.
     3. Decay: after the event, that deviation decays at most as the slowest free modal envelope of the lowest
        ``modes`` modes (:func:`_decay_envelope`, linear as §5.3, sized with ``margin``): its effect at t is
-       ``margin``·D·env(t − t_end), decayed once ≤ ε.
+       ``margin``·D·env(t − t_end), decayed once ≤ ε (on the step grid after t_end, also past the shot's end; an
+       event still in contact at the pass's last time never decays).
     4. Windows: each frame's §5.3 modal adaptive window (:func:`modal_adaptive_windows`), extended so that it starts
        before every event that has begun and is still in contact or not yet decayed at that frame, by that event's
-       own modal window at its start (the approach into the contact is inside the window too); never before the
-       shot start ``start_s``.
+       own modal window at its start (the approach into the contact is inside the window too), and before every
+       earlier event still live when it began (a contact that starts from a state another contact left behind needs
+       that one too); never before the shot start ``start_s``.
 
     Frames stay history-free given the plan (each is a KD window of its δ(t); the same plan gives the same bits). A
     contact that leaves the object in another equilibrium (a braid draped over the shoulder) never decays: windows
     after it reach back to before it, and KD there becomes the full simulation from before the event, which is the
     honest answer."""
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    X = np.asarray(pass_positions, dtype=np.float64)
-    if X.shape != (len(t), *system.rest_equilibrium.shape):
-        raise KDInputError(f"pass_positions: expected ({len(t)}, {len(system.rest_equilibrium)}, 3) node positions "
-                           f"[m] at the {len(t)} times, got {X.shape}")
     aw = modal_adaptive_windows(system, trajectory, t, step_s=step_s, epsilon_m=epsilon_m, start_s=start_s,
                                 modes=modes, margin=margin)
     cm = system.contact
     if cm is None:
         return aw, []
+    h, eps, s = aw.step_s, aw.epsilon_m, aw.start_s
+    if pass_positions is None:  # the cheap pass on its own grid, every pass step to the last time asked for
+        H = CONTACT_PASS_STEPS * h
+        tp = s + H * np.arange(int(np.ceil((float(t.max()) - s) / H - 1e-9)) + 1)
+        X = contact_pass(system, trajectory, tp, step_s=h, start_s=s)
+    else:
+        tp = t if pass_times is None else np.atleast_1d(np.asarray(pass_times, dtype=np.float64))
+        X = np.asarray(pass_positions, dtype=np.float64)
+    if X.shape != (len(tp), *system.rest_equilibrium.shape):
+        raise KDInputError(f"pass_positions: expected ({len(tp)}, {len(system.rest_equilibrium)}, 3) node positions "
+                           f"[m] at the {len(tp)} pass times, got {X.shape}")
+    if len(tp) > 1 and not (np.diff(tp) > 0).all():
+        raise KDInputError("pass_times: expected increasing times in seconds")
+    awp = aw if tp is t else modal_adaptive_windows(system, trajectory, tp, step_s=h, epsilon_m=eps, start_s=s,
+                                                    modes=modes, margin=margin)
     import scipy.sparse as sp
 
     from .analysis import modal_basis
 
-    h, eps, s = aw.step_s, aw.epsilon_m, aw.start_s
     band = CONTACT_BAND_DHAT * cm.dhat_m if band_m is None else float(band_m)
-    C, _ = cm.collider_pose(t, trajectory)
-    near = np.array([cm.min_distance(X[k, cm.nodes], C[k], within_m=band) <= band for k in range(len(t))])
-    kin = system.observe_kinematic(trajectory, t)
-    dev = np.linalg.norm((X - kin).reshape(len(t), -1), axis=1)
+    C, _ = cm.collider_pose(tp, trajectory)
+    kin = system.observe_kinematic(trajectory, tp)
+    near = np.array([min(cm.min_distance(X[k, cm.nodes], C[k], within_m=band),
+                         cm.min_distance(kin[k, cm.nodes], C[k], within_m=band)) <= band for k in range(len(tp))])
+    dev = np.linalg.norm((X - kin).reshape(len(tp), -1), axis=1)
     md = system.model
     basis = modal_basis(md.rest_stiffness(), sp.diags(md.free_masses), count=modes,
                         rayleigh_alpha=md.rayleigh_alpha, rayleigh_beta=md.rayleigh_beta)
+    tau = h * np.arange(int(np.ceil(600.0 / h)))  # decay times on the step grid, up to 10 min
     events = []
     k = 0
-    while k < len(t):
+    while k < len(tp):
         if not near[k]:
             k += 1
             continue
         a = k
-        while k + 1 < len(t) and near[k + 1]:
+        while k + 1 < len(tp) and near[k + 1]:
             k += 1
         b = k
-        ta = float(t[max(a - 1, 0)])
+        ta = float(tp[max(a - 1, 0)])
         D = float(dev[b])
-        # the first time after the event's end at which margin·D·env ≤ ε (inf when it never does within the shot)
-        later = t[t >= t[b]]
-        ok = margin * D * _decay_envelope(basis, later - t[b]) <= eps
-        decayed = float(later[np.argmax(ok)]) if ok.any() and b + 1 < len(t) else np.inf
-        events.append({"start_s": ta, "end_s": float(t[b]), "left_behind_m": D,
-                       "decayed_s": decayed if np.isfinite(decayed) else None,
-                       "window_start_s": max(s, ta - float(aw.window_s[max(a - 1, 0)]))})
+        # the first time after the event's end at which margin·D·env ≤ ε (None: in contact at the pass's end, or
+        # not within 10 min)
+        ok = margin * D * _decay_envelope(basis, tau) <= eps
+        decayed = float(tp[b] + tau[np.argmax(ok)]) if ok.any() and b + 1 < len(tp) else None
+        ws = max(s, ta - float(awp.window_s[max(a - 1, 0)]))
+        for ev in events:  # an earlier event still live where this one starts: its state is that one's outcome
+            if _live(ev, np.array([ta]))[0]:
+                ws = min(ws, ev["window_start_s"])
+        events.append({"start_s": ta, "end_s": float(tp[b]), "left_behind_m": D, "decayed_s": decayed,
+                       "window_start_s": ws})
         k += 1
     start = t - aw.window_s
     for ev in events:
-        gone = np.inf if ev["decayed_s"] is None else ev["decayed_s"]
-        live = (t >= ev["start_s"]) & ((t <= ev["end_s"]) | (t < gone))
-        start = np.where(live, np.minimum(start, ev["window_start_s"]), start)
+        start = np.where(_live(ev, t), np.minimum(start, ev["window_start_s"]), start)
     start = np.maximum(start, s)
     steps = np.maximum(aw.steps, np.ceil((t - start) / h - 1e-9).astype(np.int64))
     out = AdaptiveWindows(times=t, steps=steps, window_s=steps * h, bound_m=aw.bound_m, epsilon_m=eps, step_s=h,
                           start_s=s, history_steps=aw.history_steps)
     return out, events
+
+
+def _live(ev: dict, t: np.ndarray) -> np.ndarray:
+    """(T,) bool: whether contact event ``ev`` (:func:`contact_aware_windows`) has begun and is still in contact or
+    not yet decayed at times ``t`` [s]."""
+    gone = np.inf if ev["decayed_s"] is None else ev["decayed_s"]
+    return (t >= ev["start_s"]) & ((t <= ev["end_s"]) | (t < gone))

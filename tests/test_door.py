@@ -1,6 +1,8 @@
 """``kdfem door``: the floppy hat under the door (paper §4.4, Fig. 7-d). The built-in scene is run once (no movie):
 the tip really hits before, the posture correction makes it clear after (checked from scratch), the point constraint
-at t_i is met, the correction is a local bell on the joint angles only; and door shot files fail with one clear
+at t_i is met, the correction is a local bell on the joint angles only; with colliders (the default) the hat never
+enters the head, the lintel is a collider of the independent check and the corrected pass never touches it (ipctk,
+every step of a full simulation with contact); point caches of the pass; and door shot files fail with one clear
 line."""
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from kdfem.scenes import DOOR_SHOT, load_door_shot, run_door
 @pytest.fixture(scope="module")
 def door(tmp_path_factory):
     out = tmp_path_factory.mktemp("door")
-    return run_door(out, movie=False, movie_fps=10.0), out  # plots at 10 fps keep the test short
+    # plots at 10 fps keep the test short; point caches at that rate
+    return run_door(out, movie=False, movie_fps=10.0, export=("pc2",)), out
 
 
 def test_the_summary_has_the_keys_the_issue_lists(door):
@@ -43,6 +46,56 @@ def test_the_hat_hits_before_and_clears_after(door):
     assert ikd["max_correction_deg"] < 30.0
     assert ikd["active_set_rounds"] >= 1
     assert ikd["clearance_per_round_m"][0] == pytest.approx(ikd["clearance_before_m"])
+
+
+def test_the_lintel_is_hit_before_and_never_touched_after(door):
+    """The uncorrected pass intersects the lintel (ipctk); the corrected one, simulated again with the head and the
+    lintel as colliders (KD states and every step of a full simulation from the walk's start), never comes within
+    d-hat of either and never intersects. ipctk's distance to the lintel is the IKD clearance (measured on the render
+    surface) plus how far the render surface's top lies above the tet boundary ipctk sees (2.5 mm at rest): the
+    tip's bending changes that offset a little, so they agree to 20 % of it."""
+    s, _ = door
+    c = s["contact"]
+    assert c["colliders"] == ["head", "lintel"] and c["kd_system_colliders"] == ["head"]
+    assert c["before_ikd"]["lintel"]["intersections"] >= 1  # the would-be hit IKD removes
+    assert c["touch_free"]
+    dhat = c["dhat_m"]
+    for part in ("after_ikd_kd_states", "after_ikd_full_simulation"):
+        for name in ("head", "lintel"):
+            r = c[part][name]
+            assert r["intersections"] == 0 and r["lower_bound_m"] > dhat, (part, name, r)
+    full = c["after_ikd_full_simulation"]
+    assert full["steps"] == full["lintel"]["states"] >= round(s["door"]["pass_end_s"] / s["kd"]["step_s"])
+    offset = c["render_top_above_contact_surface_m"]
+    assert 0.0 < offset < 0.01
+    clearance = s["ikd"]["clearance_after_m"]
+    for d in (c["lintel_min_distance_kd_m"], c["lintel_min_distance_full_m"]):
+        assert d >= clearance  # the contact surface lies below the render surface's top
+        assert abs(d - (clearance + offset)) <= 0.2 * offset
+    assert c["cost_ratio"] > 0 and c["cost_ratio_head"] > 0
+
+
+def test_the_pass_exports_before_and_after_ikd(door):
+    """``export=("pc2",)``: the hat's render surface and the head, before and after IKD, at the plots' 10 fps; the
+    hat's caches differ only where IKD changed the pass, the heads only where the posture moved."""
+    import numpy as np
+
+    from kdfaces.io.pointcache import read_pc2
+
+    s, out = door
+    names = ("hat_kd", "hat_ikd", "head", "head_ikd")
+    assert {f"{n}.pc2" for n in names} <= set(s["outputs"])
+    caches = {n: read_pc2(out / f"{n}.pc2", fps=10.0).positions for n in names}
+    frames = round(2.6 * 10) + 1
+    assert all(len(x) == frames for x in caches.values())
+    assert caches["hat_kd"].shape[1] == s["hat"]["surface_vertices"]
+    lo, hi = s["locality"]["support_s"]
+    t = np.arange(frames) / 10.0
+    early = t < lo - 1e-9  # before the correction's support: the same pass
+    assert early.any() and np.array_equal(caches["head"][early], caches["head_ikd"][early])
+    # the hat: the same up to the batched Newton solves' round-off (test_the_correction_is_local), then float32
+    assert np.abs(caches["hat_kd"][early] - caches["hat_ikd"][early]).max() <= 1e-6
+    assert np.abs(caches["hat_ikd"] - caches["hat_kd"]).max() > 0.005  # IKD moved the hat down by millimetres
 
 
 def test_the_correction_is_local(door):

@@ -506,6 +506,10 @@ def _contact_summary(scene: DoorScene, fresh, corrected, pass_s, pass_t, X_befor
                                       **rep_full},
         "independent_check_contact_steps": int(before_steps),
         "ikd_clearance_after_m": clearance_after_m,
+        # the clearance is measured on the render surface, ipctk on the tet mesh's boundary: at rest, the render
+        # surface's top (the tip) is this much above the boundary's
+        "render_top_above_contact_surface_m": float(scene.surface(system.rest_equilibrium)[:, 1].max()
+                                                    - system.rest_equilibrium[fresh.contact.nodes, 1].max()),
         "lintel_min_distance_full_m": lintel,
         "lintel_min_distance_kd_m": rep_after["lintel"]["min_distance_m"],
         "touch_free": bool(clear(rep_full["lintel"]) and clear(rep_after["lintel"])),

@@ -8,6 +8,10 @@ of history-free windows on the 10 ms grid) then drive the face rig (``KinematicT
 soft tissue is the demo's face KD) and the hat (:class:`~kdfem.fem.HatSystem` reads its head through θ_KD). The
 parent-torque compensation of On the Beat §4.4 is off for the neck: with the head 12× heavier than each neck link it
 makes the chain unstable (measured; see the issue note).
+
+The hat has the head as a collider (on by default, :data:`kdfaces.defaults.HAT_COLLIDERS`; ``kdfem follow
+--no-colliders``): :func:`kdfem.geometry.colliders.hat_colliders`, carried by the KD head; ``summary.json``'s
+``contact`` checks every step of the hat's full simulation on the KD head and its KD states with ipctk.
 """
 
 from __future__ import annotations
@@ -33,9 +37,17 @@ def _head_yaw_deg(trajectory, times) -> np.ndarray:
 
 
 def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = defaults.HAT_STEP_S,
-               threads: int = defaults.THREADS) -> dict:
+               threads: int = defaults.THREADS, with_colliders: bool = defaults.HAT_COLLIDERS, export=(),
+               export_unit: str = "m", frame_stride: int = 1) -> dict:
     """Run the head follow-through demo; write filmstrip_follow.png, head_yaw.png and summary.json to ``out``.
-    Returns the summary. ``threads``: CPU threads of the face's and the hat's KD batches."""
+    Returns the summary. ``threads``: CPU threads of the face's and the hat's KD batches.
+
+    ``with_colliders``: the hat has the head as a collider, and ``summary.json``'s ``contact`` holds ipctk's checks
+    (:func:`kdfem.geometry.colliders.contact_report`: minimum distance, intersections) of every step of the hat's
+    full simulation on the KD head and of its KD states, and the cost of a hat KD state with the collider against
+    without. ``export``: point-cache kinds (``"usd"``, ``"usda"``, ``"pc2"``) of the hat's and the face's KD on the
+    KD head (``hat_kd``, ``face_kd``) at every ``frame_stride``-th frame of the shot, in metres or
+    (``export_unit="rig"``) the rig's unit."""
     from kdfaces.articulated import SkeletalSystem, kd_joint_trajectory, neck_chain_model
     from kdfaces.dynamics import FaceSystem
     from kdfaces.io.rigfiles import load_rig
@@ -77,7 +89,16 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = d
     face_model = demo_face_model(rig)
     face = FaceSystem(face_model, threads=threads)
     face_window = automatic_window(face, face_K).window_s
+    from kdfaces.errors import check_count
+
+    frame_stride = check_count(frame_stride, "frame_stride")
     hat, surf, _ = default_hat_system(rig, cache_dir=out / ".cache", threads=threads)
+    free = hat
+    if with_colliders:
+        from ..fem.system import HatSystem
+        from ..geometry.colliders import hat_colliders
+
+        hat = HatSystem(free.model, embedding=free.embedding, threads=threads, colliders=hat_colliders(free, rig))
     cols = np.array([0.45, 0.6, 0.7, 0.8, 0.95])
     rows_face = {"kinematic head": face_K.positions(cols),
                  "KD head + KD face": simulate_kd(face, face_KD, cols, face_window)}
@@ -106,8 +127,52 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = d
         "face": {"window_s": float(face_window)},
         "outputs": [str(p.relative_to(out)) for p in outputs],
     }
+    if with_colliders:
+        summary["contact"] = _hat_contact(hat, free, kd_head, cols, rows_hat["KD head + KD face"], step_s)
+    if export:
+        from kdfaces.io.export import export_trajectory
+
+        unit = rig.source_unit_m if export_unit == "rig" else 1.0
+        te = anim.frame_times[::frame_stride]
+        hat_x = hat.surface(simulate_kd(hat, kd_head, te, 0.568, step_s=0.01))
+        face_x = np.asarray(simulate_kd(face, face_KD, te, face_window), dtype=np.float64)
+        for kind in dict.fromkeys(export):
+            outputs.append(export_trajectory(out, hat_x, te, kind=kind, faces=surf.faces,
+                                             fps=anim.fps / frame_stride, name="hat_kd", unit_m=unit))
+            outputs.append(export_trajectory(out, face_x, te, kind=kind, fps=anim.fps / frame_stride,
+                                             name="face_kd", rig=rig, unit_m=unit))
+        summary["outputs"] = [str(p.relative_to(out)) for p in outputs]
     write_summary(out, summary)
     return summary
+
+
+def _hat_contact(hat, free, kd_head, times, X_kd, step_s: float) -> dict:
+    """``summary.json``'s ``contact`` of the follow scene: ipctk's checks of every step of the hat's full simulation
+    with contact on the KD head ``kd_head`` (from its start to ``times``' last, step ``step_s`` [s]) and of its KD
+    states ``X_kd`` (T, N, 3) [m] at ``times`` (T,) [s]; the cost of a KD state with the collider (``hat``) against
+    without (``free``), both warm."""
+    import time
+
+    from kdfaces.kd import simulate_full, simulate_kd
+
+    from ..geometry.colliders import contact_report
+
+    start = float(kd_head.start)
+    steps = np.round(start + step_s * np.arange(int(np.floor((float(times[-1]) - start) / step_s + 1e-9)) + 1), 10)
+    full = np.asarray(simulate_full(hat, kd_head, steps, step_s=step_s))
+    timing, states = {}, {}
+    for name, sy in (("without", free), ("with", hat)) * 2:  # the second (warm) run of each is kept
+        t0 = time.perf_counter()
+        states[name] = simulate_kd(sy, kd_head, times, 0.568, step_s=0.01)
+        timing[name] = (time.perf_counter() - t0) / len(times)
+    cols = hat.contact.colliders
+    return {"colliders": [c.name for c in cols], "dhat_m": float(hat.contact.dhat_m),
+            "full_simulation": {"steps": len(steps), **contact_report(hat, cols, kd_head, steps, full)},
+            "kd_states": contact_report(hat, cols, kd_head, times, X_kd),
+            "contact_steps": int(sum(st.contact_steps for st in hat._steppers.values())),
+            "ms_per_state_with": 1e3 * timing["with"], "ms_per_state_without": 1e3 * timing["without"],
+            "cost_ratio": timing["with"] / timing["without"],
+            "cost_states_same_as_without": bool(np.array_equal(states["with"], states["without"]))}
 
 
 def _head_yaw_deg_from(system, x) -> float:

@@ -28,6 +28,9 @@ DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON = defaults.TET_EDGE_LENGTH_FAC, default
 #: The default hat's tets, built once by ``scripts/build_hat_mesh.py`` (pytetwild is not repeatable run to run, so
 #: every machine simulates the same hat); used whenever the surface and settings match its content key.
 SHIPPED_HAT_TETS = DEFAULT_RIG_PATH.parent / "hat_tets.npz"
+#: The dense (~33k-tet) hat of the benchmarks and the dense-hat test (settings 0.02, 1e-3, no coarsening), meshed once
+#: for the same reason (pytetwild takes ~20 minutes on it here, and its slivers differ run to run).
+SHIPPED_HAT_TETS_20K = DEFAULT_RIG_PATH.parent / "hat_tets_20k.npz"
 
 
 @renamed_kwargs(epsilon="envelope_fac")
@@ -45,7 +48,7 @@ def hat_tetmesh(*, edge_length_fac: float = defaults.TET_EDGE_LENGTH_FAC,
     surf = christmas_hat(params or HatParams())
     mesh, dt = tetrahedralize_cached(surf.vertices, surf.faces, edge_length_fac=edge_length_fac,
                                      envelope_fac=envelope_fac, coarsen=coarsen, where="hat", cache_dir=cache_dir,
-                                     shipped=[SHIPPED_HAT_TETS])
+                                     shipped=[SHIPPED_HAT_TETS, SHIPPED_HAT_TETS_20K])
     return surf, mesh, dt
 
 

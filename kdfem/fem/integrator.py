@@ -51,7 +51,7 @@ from . import kernels
 from .attachment import rigid_velocity_field
 from .model import FEMModel
 
-__all__ = ["FEMState", "ImplicitEuler", "static_equilibrium", "apply_frame"]
+__all__ = ["FEMState", "ImplicitEuler", "static_equilibrium", "apply_frame", "rigid_carry_velocity"]
 
 
 @dataclass
@@ -117,6 +117,10 @@ class _Workspace:
         self._rotations = wp.launch(kernels.rotations_blocks_kernel, dim=(k, blocks),
                                     inputs=[self.x, model.wp_tets, model.wp_Dminv, block],
                                     outputs=[self.R_out, self.detF], device=d, record_cmd=True)
+        self.detblk = wp.zeros((k, blocks), dtype=wp.float64, device=d)
+        self._det = wp.launch(kernels.det_blocks_kernel, dim=(k, blocks),
+                              inputs=[self.x, model.wp_tets, model.wp_Dminv, block], outputs=[self.detblk], device=d,
+                              record_cmd=True)
         # tets around each free node (CSR), for the nodal rotations of the preconditioner
         inc = sp.csr_matrix((np.ones(4 * T), (model.mesh.tets.ravel(), np.repeat(np.arange(T), 4))), shape=(N, T))
         inc = inc[model.free]
@@ -129,7 +133,7 @@ class _Workspace:
             outputs=[self.Q], device=d, record_cmd=True)
         self._potential = None  # recorded on first use (needs h)
         names = ("x", "v", "R", "f", "energy", "damp", "detF", "R_out", "Q", "vn", "Aw", "cw", "r", "E", "detmin",
-                 "scale")
+                 "scale", "detblk")
         # numpy views of the arrays on the CPU (made once: making a view costs ~10 µs); None on a GPU
         self._np = {n: getattr(self, n).numpy() for n in names} if self._cpu else None
 
@@ -165,6 +169,13 @@ class _Workspace:
         self._potential.launch()
         return self._get("E").copy(), self._get("r").copy(), self._get("detmin").copy(), self._get("scale").copy()
 
+    def min_det(self, x: np.ndarray) -> np.ndarray:
+        """The smallest det F over the tets (k,) at positions ``x`` (k, N, 3) [m] (:func:`kernels.det_blocks_kernel`;
+        no forces, no rotations)."""
+        self._put("x", x)
+        self._det.launch()
+        return self._get("detblk").min(axis=1)
+
     def rotations(self, x: np.ndarray):
         """Per-tet polar rotations (k, T, 3, 3), det F (k, T) and the free nodes' rotations (k, F, 3, 3) (the polar
         rotation of the sum of their tets') at positions ``x`` (k, N, 3) [m] (new arrays)."""
@@ -177,6 +188,26 @@ class _Workspace:
 def apply_frame(G: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Points X (N, 3) or (B, N, 3) [m] under transforms G (B, 4, 4) → (B, N, 3)."""
     return np.einsum("bij,b...nj->bni", G[:, :3, :3], X if X.ndim == 3 else X[None]) + G[:, None, :3, 3]
+
+
+def rigid_carry_velocity(x: np.ndarray, x_att1: np.ndarray, attached: np.ndarray, step_s: float) -> np.ndarray:
+    """Velocities (B, N, 3) [m/s] that carry node positions ``x`` (B, N, 3) [m] rigidly in one step of ``step_s``
+    [s] to where the attached nodes ``attached`` (A,) land at ``x_att1`` (B, A, 3): the rigid transform x ↦ Rx + c
+    that maps x[:, attached] onto x_att1 (Kabsch: SVD of the centred cross-covariance, det R = +1; exact when the
+    attached nodes move rigidly, as they follow the bone). A rigid map keeps every det F, so a first guess made of
+    it never inverts an element that x_n does not (the extrapolated guess can: a sliver thinner than its
+    O(h²·ω²·r) error)."""
+    xa = x[:, attached]
+    ca, cb = xa.mean(axis=1, keepdims=True), x_att1.mean(axis=1, keepdims=True)
+    H = np.einsum("bni,bnj->bij", xa - ca, x_att1 - cb)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.ones((len(x), 3))
+    D[:, 2] = np.sign(np.linalg.det(np.transpose(Vt, (0, 2, 1)) @ np.transpose(U, (0, 2, 1))))
+    R = np.einsum("bji,bj,bkj->bik", Vt, D, U)  # V diag(D) Uᵀ
+    x1 = np.einsum("bij,bnj->bni", R, x - ca) + cb
+    v = (x1 - x) / step_s
+    v[:, attached] = (x_att1 - x[:, attached]) / step_s  # exact where they are prescribed
+    return v
 
 
 def _factor_spd(A: sp.spmatrix) -> spla.SuperLU:
@@ -299,9 +330,10 @@ class ImplicitEuler:
         v = v1[members]
         Rm, Awm, cwm = Rn[members], Aw[members], cw[members]
         E, r, detF, scale = self._potential(xn, vn, v, Rm, Awm, cwm, slot)
-        bad = detF <= 0
-        if bad.any():  # the extrapolated guess x + h v inverts: start from the positions at t instead
-            v[np.ix_(np.flatnonzero(bad), fr)] = 0.0
+        bad = np.flatnonzero(detF <= 0)
+        if len(bad):  # the extrapolated guess x + h v inverts: start from x_n carried rigidly by the head instead
+            att = self.model.attached
+            v[bad] = rigid_carry_velocity(xn[bad], xn[bad][:, att] + h * v[bad][:, att], att, h)
             E, r, detF, scale = self._potential(xn, vn, v, Rm, Awm, cwm, slot)
             if (detF <= 0).any():
                 b = members[int(np.argmin(detF))]
@@ -322,10 +354,16 @@ class ImplicitEuler:
             size = np.abs(d).max(axis=(1, 2))
             if not np.isfinite(d).all():
                 raise SimulationBlowUpError(f"{where}: non-finite Newton update in iteration {it}")
-            # an update below the tolerance is the last one: take it whole, without evaluating E again
+            # an update below the tolerance is the last one: take it whole, without evaluating E again, unless it
+            # inverts a tet (a sliver thinner than the update: then it is line-searched like any other)
             final = h * size < self.tol_m
-            for j in np.flatnonzero(final):
-                v[a[j], fr] += d[j]
+            fin = np.flatnonzero(final)
+            if len(fin):
+                vt = v[a[fin]].copy()
+                vt[:, fr] += d[fin]
+                flips = self.workspace(len(fin), slot).min_det(xn[a[fin]] + h * vt) <= 0
+                final[fin[flips]] = False
+                v[a[fin[~flips]]] = vt[~flips]
             search = np.flatnonzero(~final)
             slope = (d * r[a]).sum(axis=(1, 2))
             t = np.ones(len(a))

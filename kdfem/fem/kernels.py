@@ -12,7 +12,8 @@ from __future__ import annotations
 import warp as wp
 
 __all__ = ["tet_forces", "forces_kernel", "forces_blocks_kernel", "potential_kernel", "rotations_kernel",
-           "rotations_blocks_kernel", "node_rotations_kernel", "warped_kernel", "hessian_kernel", "mat99"]
+           "rotations_blocks_kernel", "det_blocks_kernel", "node_rotations_kernel", "warped_kernel", "hessian_kernel",
+           "mat99"]
 
 
 mat99 = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
@@ -266,6 +267,18 @@ def rotations_blocks_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=
         F = deformation(x, b, tets[e], Dminv[e])
         R_out[b, e] = polar_rotation(F)
         detF_out[b, e] = wp.determinant(F)
+
+
+@wp.kernel
+def det_blocks_kernel(x: wp.array2d(dtype=wp.vec3d), tets: wp.array(dtype=wp.vec4i), Dminv: wp.array(dtype=wp.mat33d),
+                      block: int, detmin_out: wp.array2d(dtype=wp.float64)):
+    """Per (batch, block of ``block`` tets): the smallest det F of the block's tets at positions ``x`` (B, N) [m]
+    (``detmin_out`` (B, blocks)): the inversion check of a Newton update taken without a line search."""
+    b, k = wp.tid()
+    dmin = wp.float64(1e300)
+    for e in range(k * block, wp.min((k + 1) * block, tets.shape[0])):
+        dmin = wp.min(dmin, wp.determinant(deformation(x, b, tets[e], Dminv[e])))
+    detmin_out[b, k] = dmin
 
 
 @wp.kernel

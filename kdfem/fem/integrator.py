@@ -24,8 +24,12 @@ to its own warped stiffness K_P = Σ R_e K0_e R_eᵀ at its current shape (per-t
 member and **reused** over the following iterations and steps until it contracts slowly again. The first guess
 extrapolates the velocity from the last two steps. Members
 stop iterating as soon as they converge (per-member mask): max|Δv|·h < ``tol``; an update already below the
-tolerance is taken without a line search (its inversion check is the next step's). A state that inverts an
-element, or a line search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
+tolerance is taken without a line search unless it inverts a tet (det F ≤ 0 anywhere: then it is line-searched).
+No accepted iterate inverts: the line search backtracks until every tet's det F > 0 before the energy test (the
+stable Neo-Hookean energy is finite for inverted tets, so the energy alone would not stop it). A first guess that
+inverts (a sliver at the attachment thinner than the extrapolation's O(h²) error) is replaced by x_n carried
+rigidly onto the attached nodes' targets, which keeps every det F. A state that inverts an element, or a line
+search that finds no decrease, raises :class:`~kdfaces.errors.SimulationBlowUpError`.
 
 Speed (the KD scrub path steps one state ~60 times per frame): the per-tet kernels read and write Warp arrays kept
 alive across steps (numpy views of them on the CPU) through launches recorded once, so an evaluation of E and r

@@ -35,11 +35,13 @@ class _SideView:
         self.hat = _pd(pv, scene.surface(scene.system.rest_equilibrium), scene.surface_faces)
         pl.add_mesh(self.head, color=SKIN, smooth_shading=True, specular=0.2)
         pl.add_mesh(self.hat, color=HAT, smooth_shading=True, specular=0.3)
+        from ..geometry.colliders import LINTEL_OVERHANG_M, lintel_box
+
         z0, z1, y = d.front_z_m, d.front_z_m + d.depth_m, d.lintel_y_m
-        w = 0.5 * d.width_m
-        pl.add_mesh(pv.Box((-w - 0.08, w + 0.08, y, y + 0.12, z0, z1)), color=DOOR, opacity=0.55)  # lintel
-        pl.add_mesh(pv.Box((-w - 0.08, -w, 0.3, y, z0, z1)), color=DOOR)  # far post
-        pl.add_mesh(pv.Box((w, w + 0.08, 0.3, y, z0, z1)), color=DOOR, opacity=0.15)  # near post, see-through
+        w, post = 0.5 * d.width_m, LINTEL_OVERHANG_M
+        pl.add_mesh(pv.Box(lintel_box(d)), color=DOOR, opacity=0.55)  # the lintel: the collider's box
+        pl.add_mesh(pv.Box((-w - post, -w, 0.3, y, z0, z1)), color=DOOR)  # far post
+        pl.add_mesh(pv.Box((w, w + post, 0.3, y, z0, z1)), color=DOOR, opacity=0.15)  # near post, see-through
         pl.add_mesh(pv.Line((0.3, y, z0 - 1.5), (0.3, y, z1 + 1.5)), color="#303030", line_width=1.5)  # lintel height
         self.tip = pv.Sphere(radius=0.012, center=(0.0, 0.0, 0.0))
         self.tip_actor = pl.add_mesh(self.tip, color=CLEAR)

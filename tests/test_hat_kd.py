@@ -72,11 +72,21 @@ def test_bad_input_gives_clear_errors(setup):
 
 @pytest.fixture(scope="module")
 def demo_hat(tmp_path_factory):
+    from kdfaces import defaults
     from kdfem.fem.default_hat import default_hat_system
+    from kdfem.geometry.colliders import hat_colliders
 
     rig = load_default_rig()
     system, _, _ = default_hat_system(rig, cache_dir=tmp_path_factory.mktemp("tets"))
+    if defaults.HAT_COLLIDERS:  # as in the hat's scenes: the head is a collider (the demo never brings the hat near)
+        system = HatSystem(system.model, embedding=system.embedding, colliders=hat_colliders(system, rig))
     return KinematicTrajectory(rig, demo_animation()), system
+
+
+def _threaded(system):
+    """``system`` on two threads, with the same colliders (its own contact model, the default d-hat and kappa)."""
+    return HatSystem(system.model, embedding=system.embedding, threads=2,
+                     colliders=None if system.contact is None else system.contact.colliders)
 
 
 def test_demo_hat_swings_after_a_sharp_head_stop_and_the_swing_decays(demo_hat):
@@ -91,7 +101,7 @@ def test_demo_hat_swings_after_a_sharp_head_stop_and_the_swing_decays(demo_hat):
 
 def test_batched_kd_equals_per_frame_kd(demo_hat):
     traj, system = demo_hat
-    threaded = HatSystem(system.model, embedding=system.embedding, threads=2)
+    threaded = _threaded(system)
     times = np.array([4.96, 5.04, 5.2])
     batch = simulate_kd(threaded, traj, times, 0.2, step_s=0.01)
     single = np.stack([simulate_kd(system, traj, times[k:k + 1], 0.2, step_s=0.01)[0] for k in range(len(times))])
@@ -108,7 +118,7 @@ def test_threaded_windows_repeat_to_the_bit_count_progress_and_stop_on_an_error(
     from kdfem.fem.integrator import ImplicitEuler
 
     traj, system = demo_hat
-    threaded = HatSystem(system.model, embedding=system.embedding, threads=2)
+    threaded = _threaded(system)
     t0 = np.array([4.9, 4.94, 4.98, 5.02, 5.06])
     n, h = 12, 0.01
 

@@ -61,15 +61,34 @@ def on_frame_change(scene, depsgraph=None) -> None:
     refresh(scene)
 
 
+#: Data-block types whose edits can change an object's rig, animation or timing.
+_WATCHED = ("Mesh", "Key", "Action", "Object", "Scene", "Armature")
+
+
+@persistent
+def on_depsgraph_update(scene, depsgraph=None) -> None:
+    """``depsgraph_update_post`` handler: an edit Blender reports makes the next frame re-hash the objects' data
+    (:func:`kdfaces.blender.scene.note_edit`)."""
+    updates = getattr(depsgraph, "updates", None)
+    if updates is None or any(type(u.id).__name__ in _WATCHED for u in updates):
+        kdscene.note_edit()
+
+
 CLASSES = ()
 
 
 def register_extra() -> None:
     if on_frame_change not in bpy.app.handlers.frame_change_post:
         bpy.app.handlers.frame_change_post.append(on_frame_change)
+    if on_depsgraph_update not in bpy.app.handlers.depsgraph_update_post:
+        bpy.app.handlers.depsgraph_update_post.append(on_depsgraph_update)
+    kdscene.track_edits(True)
 
 
 def unregister_extra() -> None:
     while on_frame_change in bpy.app.handlers.frame_change_post:
         bpy.app.handlers.frame_change_post.remove(on_frame_change)
+    while on_depsgraph_update in bpy.app.handlers.depsgraph_update_post:
+        bpy.app.handlers.depsgraph_update_post.remove(on_depsgraph_update)
+    kdscene.track_edits(False)
     kdscene.clear_cache()

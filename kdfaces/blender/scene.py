@@ -39,8 +39,12 @@ The API the panel, the frame handler, IKD and bake build on:
 
 Everything derived is cached per object (:func:`object_entry`) under a BLAKE2 hash of all it depends on — the
 basis and shape-key coordinates, key names, relative keys, mute flags and values, the topology, the fcurves'
-keyframes and handles, the scene's fps, frame range and unit scale, and the settings — recomputed on every call, so
-the cache is never stale: edit a key, a keyframe or a setting and the next frame rebuilds what changed.
+keyframes and handles, the scene's fps, frame range and unit scale, and the settings — so the cache is never
+stale: edit a key, a keyframe or a setting and the next frame rebuilds what changed. Reading every shape key costs
+~2 ms per key in Blender (``foreach_get`` on shape-key points is not a raw-array path), so inside the extension
+the full hash is recomputed only after an edit Blender reports (``depsgraph_update_post``, :func:`note_edit`;
+frame changes are not edits); names, counts, scene timing and settings are compared on every call. Outside the
+extension (:func:`track_edits` off) every call hashes everything.
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ __all__ = [
     "KD_KEY", "KDSettings", "KDFrame", "ObjectEntry", "to_kd", "from_kd", "scene_fps", "scene_unit_m",
     "frame_time_s", "kd_settings", "object_rig", "object_animation", "object_trajectory", "object_model",
     "object_system", "object_window", "object_entry", "kd_state", "apply_kd", "remove_kd_key", "clear_cache",
+    "track_edits", "note_edit",
 ]
 
 #: Name of the shape key that holds x_KD − x_K (rewritten on every frame change, value 1).
@@ -235,6 +240,8 @@ class ObjectEntry:
     system: object = None
     window: object = None
     frame_cache: dict = field(default_factory=dict)
+    generation: int | None = None
+    quick_key: tuple = ()
 
     def close(self) -> None:
         if self.system is not None:
@@ -243,6 +250,32 @@ class ObjectEntry:
 
 
 _ENTRIES: dict[int, ObjectEntry] = {}
+
+#: The edit generation: the extension's ``depsgraph_update_post`` handler (:mod:`kdfaces.blender.handlers`) bumps it
+#: on every data edit Blender reports (mesh, shape keys, action, object, scene; frame changes are not edits). While
+#: it is tracked (not None) an object whose entry was hashed in the current generation, with the same key names,
+#: counts, scene timing and settings, skips the full hash; None (no handler) hashes everything on every call.
+_EDITS: dict[str, int | None] = {"generation": None}
+
+
+def track_edits(on: bool) -> None:
+    """Start (``on``) or stop trusting :func:`note_edit` calls to say when data may have changed."""
+    _EDITS["generation"] = 0 if on else None
+
+
+def note_edit() -> None:
+    """Blender reported a data edit: the next call of :func:`object_entry` hashes everything again."""
+    if _EDITS["generation"] is not None:
+        _EDITS["generation"] += 1
+
+
+def _quick_key(obj, scene, ref, shapes, s) -> tuple:
+    """What is checked on every call even within one edit generation (cheap: names, counts, timing, settings)."""
+    mesh = obj.data
+    return (obj.name, len(mesh.vertices), len(mesh.polygons), ref.name,
+            tuple((kb.name, getattr(kb.relative_key, "name", ""), kb.mute) for kb in shapes),
+            scene.frame_start, scene.frame_end, scene.render.fps, scene.render.fps_base,
+            scene.unit_settings.scale_length, s)
 
 
 def clear_cache() -> None:
@@ -369,9 +402,13 @@ def object_entry(obj, scene) -> ObjectEntry:
     _check_armature(obj)
     ref, shapes = _shape_blocks(obj)
     s = kd_settings(obj)
+    e = _ENTRIES.get(_entry_id(obj))
+    generation = _EDITS["generation"]
+    quick = _quick_key(obj, scene, ref, shapes, s)
+    if e is not None and generation is not None and e.generation == generation and e.quick_key == quick:
+        return e  # nothing was edited since this entry was hashed
     rig_key, blocks = _rig_hash(obj, scene, ref, shapes)
     anim_key = _anim_hash(obj, scene, shapes)
-    e = _ENTRIES.get(_entry_id(obj))
     new = ObjectEntry() if e is None else ObjectEntry(**{k: getattr(e, k) for k in ObjectEntry.__dataclass_fields__})
     if new.rig_key != rig_key:
         new.rig, new.model, new.trajectory = _build_rig(obj, scene, ref, shapes, blocks), None, None
@@ -394,6 +431,7 @@ def object_entry(obj, scene) -> ObjectEntry:
         new.frame_cache = {}
     if e is not None and e.system is not None and e.system is not new.system:
         e.close()
+    new.generation, new.quick_key = generation, quick
     _ENTRIES[_entry_id(obj)] = new
     return new
 

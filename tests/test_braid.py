@@ -178,7 +178,7 @@ def test_contact_aware_windows_reach_back_past_contact(scene_contact):
 
 def test_full_simulation_flips_braid_without_intersection(scene_contact):
     """The full simulation with contact flips the braid over the shoulder (its tip crosses the shoulder plane, at
-    t ≈ 0.68 s under BRAID_HEAD_KEYS) and the independent ipctk check finds no intersection and a positive distance
+    t ≈ 0.72 s under BRAID_HEAD_KEYS) and the independent ipctk check finds no intersection and a positive distance
     on every evaluated frame. The first 1.2 s (turn, flip and hold) at every second frame, to keep the test short."""
     from kdfaces.kd import simulate_full
     from kdfem.scenes.braid import contact_check, shoulder_flip
@@ -260,7 +260,7 @@ def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_conta
     swing has decayed, where the window shrinks to start after the fall-back and is within ε too. The plan is the
     same bits when computed again from the same pass."""
     from kdfaces.kd import simulate_full, simulate_kd
-    from kdfem.modal.adaptive import CONTACT_PASS_STEPS, contact_aware_windows, contact_pass
+    from kdfem.modal.adaptive import CONTACT_PASS_SAMPLE_STEPS, contact_aware_windows, contact_pass
     from kdfem.scenes.braid import shoulder_flip
 
     sc = scene_contact
@@ -268,7 +268,7 @@ def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_conta
     est = sys_.automatic_window(sc.joints, step_s=h)
     eps, window = float(est.epsilon_m), float(est.window_s)
     F = np.array([2.72, 3.6, 6.0])
-    H = CONTACT_PASS_STEPS * h
+    H = CONTACT_PASS_SAMPLE_STEPS * h
     tp = H * np.arange(int(round(F.max() / H)) + 1)
     Xp = contact_pass(sys_, sc.joints, tp, step_s=h)
     aw, events = contact_aware_windows(sys_, sc.joints, F, Xp, pass_times=tp, step_s=h, epsilon_m=eps)

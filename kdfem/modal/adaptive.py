@@ -38,7 +38,7 @@ from kdfaces.window import AdaptiveWindows, impulse_responses, truncation_steps
 from ..fem.attachment import head_motion
 
 __all__ = ["modal_kicks", "modal_adaptive_windows", "contact_aware_windows", "contact_pass", "ADAPTIVE_MODES",
-           "NONLINEAR_MARGIN", "CONTACT_BAND_DHAT", "CONTACT_PASS_STEPS"]
+           "NONLINEAR_MARGIN", "CONTACT_BAND_DHAT", "CONTACT_PASS_STEPS", "CONTACT_PASS_SAMPLE_STEPS"]
 
 #: Modes the adaptive bound sums over.
 ADAPTIVE_MODES = 12
@@ -124,8 +124,12 @@ def modal_adaptive_windows(system, trajectory, times=None, *, step_s: float | No
 CONTACT_BAND_DHAT = 10.0
 
 
-#: The plan's cheap pass steps this many KD steps at a time (:func:`contact_pass`).
-CONTACT_PASS_STEPS = 4
+#: The plan's cheap pass steps this many KD steps at a time (:func:`contact_pass`; at 4 the braid's pass led to a
+#: state the turning neck sweeps through within one KD step, and restarted).
+CONTACT_PASS_STEPS = 2
+#: The plan reads the cheap pass every this many KD steps (a multiple of :data:`CONTACT_PASS_STEPS`; 40 ms for the
+#: braid, its frame interval), whatever frames are asked for.
+CONTACT_PASS_SAMPLE_STEPS = 4
 
 
 def contact_pass(system, trajectory, times, *, step_s: float, steps_per_pass_step: int = CONTACT_PASS_STEPS,
@@ -133,7 +137,9 @@ def contact_pass(system, trajectory, times, *, step_s: float, steps_per_pass_ste
     """The contact-aware plan's cheap pass: one sequential simulation of the shot with contact at a coarse step,
     H = ``steps_per_pass_step`` × ``step_s`` [s] (the KD step), observed at ``times`` (T,) [s] (on the pass grid
     ``start_s`` + k·H, increasing) → (T, N, 3) [m]. A pass step that the contact step refuses (a collider moving
-    through the object within one step, an inverted element) is retaken as two half steps, down to ``step_s``.
+    through the object within one step, an inverted element) is retaken as two half steps, down to ``step_s``; a
+    step refused even there (the coarse steps led somewhere the body sweeps through the object) restarts the pass
+    at half the coarse step (at worst the full simulation).
 
     It rests on what the plan reads from it: where the object comes near a collider (contact intervals) and how far
     it is from the carried rest shape when a contact ends (what the contact leaves behind). A larger implicit-Euler
@@ -153,6 +159,20 @@ def contact_pass(system, trajectory, times, *, step_s: float, steps_per_pass_ste
     if (k_out < 0).any() or np.abs(s + k_out * H - t).max(initial=0.0) > 1e-9 * max(1.0, float(np.abs(t).max())) \
             or (len(t) > 1 and not (np.diff(k_out) > 0).all()):
         raise KDInputError(f"contact pass times: expected increasing times on the pass grid {s:g} + k·{H:g} s")
+    try:
+        return _pass(system, trajectory, t, k_out, s, h, H)
+    except SimulationBlowUpError:
+        if n == 1:
+            raise
+    # a step refused even at the KD step, from where the coarse steps led: the pass again at half the coarse step
+    return contact_pass(system, trajectory, times, step_s=h, steps_per_pass_step=n // 2, start_s=s)
+
+
+def _pass(system, trajectory, t, k_out, s: float, h: float, H: float) -> np.ndarray:
+    """:func:`contact_pass`'s simulation: pass steps of ``H`` [s] from ``s`` [s], refused ones as halves down to
+    ``h``, observed after ``k_out`` (T,) pass steps."""
+    from kdfaces.errors import SimulationBlowUpError
+
     state = system.initial_state(trajectory, np.array([s]))
 
     def advance(t0: float, dt: float) -> None:
@@ -203,8 +223,9 @@ def contact_aware_windows(system, trajectory, times, pass_positions=None, *, pas
 
     The plan, computed once per shot from a **pass**: ``pass_positions`` (P, N, 3) [m], the object's node positions
     at ``pass_times`` (P,) [s] (default ``times``) from one sequential simulation of the shot with contact (any
-    step). None runs the cheap one, :func:`contact_pass`, on its own grid (every :data:`CONTACT_PASS_STEPS` KD
-    steps up to the last of ``times``): contact intervals need the pass densely, whatever frames are asked for.
+    step). None runs the cheap one, :func:`contact_pass`, read on its own grid (every
+    :data:`CONTACT_PASS_SAMPLE_STEPS` KD steps up to the last of ``times``): contact intervals need the pass densely,
+    whatever frames are asked for.
 
     1. Contact intervals: frames where the pass, or the rest shape carried by the head (x_K: the kinematic
        trajectory's own contacts), comes within ``band_m`` (default :data:`CONTACT_BAND_DHAT`·d̂) of a collider
@@ -234,8 +255,8 @@ def contact_aware_windows(system, trajectory, times, pass_positions=None, *, pas
     if cm is None:
         return aw, []
     h, eps, s = aw.step_s, aw.epsilon_m, aw.start_s
-    if pass_positions is None:  # the cheap pass on its own grid, every pass step to the last time asked for
-        H = CONTACT_PASS_STEPS * h
+    if pass_positions is None:  # the cheap pass on its own grid, every CONTACT_PASS_SAMPLE_STEPS to the last time
+        H = CONTACT_PASS_SAMPLE_STEPS * h
         tp = s + H * np.arange(int(np.ceil((float(t.max()) - s) / H - 1e-9)) + 1)
         X = contact_pass(system, trajectory, tp, step_s=h, start_s=s)
     else:

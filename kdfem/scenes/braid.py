@@ -16,8 +16,10 @@ friction; relative to the head) takes its pendulum swing (ω ≈ 6 rad/s, dampin
 to 8 % after a second; the §5.3 window of the turn is then 1.7 s, shorter than the time left after the flip.
 
 Contact-aware windows (:func:`contact_aware_windows`, :func:`kdfem.modal.adaptive.contact_aware_windows`): the modal
-adaptive windows, extended past every contact event of the shot's sequential pass whose effect has not decayed below
-ε; the braid stays draped over the shoulder after the flip, so its windows after the flip reach back to before it.
+adaptive windows, extended past every contact event whose effect has not decayed below ε, planned once per shot from
+a cheap pass (:func:`kdfem.modal.adaptive.contact_pass`, a contact simulation at 2 × the KD step) and x_K; while the
+braid lies over the shoulder its windows reach back to before the flip, and once the second move has thrown it back
+down the back and its swing has decayed, they shrink to the §5.3 windows again.
 """
 
 from __future__ import annotations

@@ -258,6 +258,7 @@ class ProxyFaceSystem(FaceSystem):
         self._carried = carried.astype(np.int64)
         self._carry = sp.csr_matrix(W[carried])  # (E, P)
         self._deviating = np.union1d(self._region, carried).astype(np.int64)
+        self._dense_views = (None, [])  # (trajectory, [(vertex part, its restricted view)]) for observe's threads
 
     @property
     def proxy_vertices(self) -> np.ndarray:
@@ -267,15 +268,16 @@ class ProxyFaceSystem(FaceSystem):
     def observe(self, state) -> np.ndarray:
         """Dense vertex positions of every member [m], (B, N, 3) float64: the proxy's vertices from the state, the
         carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64, the trajectory's own
-        values). One pass of x_K over the N vertices per member (blend + skin) and one sparse product."""
+        values). One pass of x_K over the N vertices per member (blend + skin; with several threads each evaluates
+        a contiguous part of the vertices, the rows of the same evaluation) and one sparse product."""
         self._check(state)
         x = np.concatenate([ch.x.numpy() for ch in state.chunks])  # float32 (B, P, 3)
         traj = state.bake.trajectory if state.bake is not None else state.trajectory
         t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
-        full = np.empty((len(x), self.model.num_vertices, 3))
         p, region, carried = len(self._region), self._region, self._carried
+        out = []
         for i in range(0, len(t), 32):
-            xk = scan_trajectory(traj, t[i:i + 32], 0)[0]  # x_K of every vertex, (b, N, 3)
+            xk = self._dense_kinematic(traj, t[i:i + 32])  # x_K of every vertex, (b, N, 3)
             xp = x[i:i + 32].astype(np.float64)
             if len(carried):
                 d = xp - xk[:, region]
@@ -283,8 +285,27 @@ class ProxyFaceSystem(FaceSystem):
                 xk[:, carried] += (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3) \
                     .transpose(1, 0, 2)
             xk[:, region] = xp
-            full[i:i + 32] = xk
-        return full
+            out.append(xk)
+        return out[0] if len(out) == 1 else np.concatenate(out)
+
+    def _dense_kinematic(self, trajectory, times: np.ndarray) -> np.ndarray:
+        """x_K of every vertex at ``times`` (b,) [s] → (b, N, 3) float64, split over the threads by vertices."""
+        from ..motion.trajectory import restrict_trajectory
+
+        if self._workers is None or self.threads < 2:
+            return np.array(scan_trajectory(trajectory, times, 0)[0])
+        if self._dense_views[0] is not trajectory:
+            parts = np.array_split(np.arange(self.model.num_vertices), self.threads)
+            self._dense_views = (trajectory, [(q, restrict_trajectory(trajectory, q)) for q in parts])
+        out = np.empty((len(times), self.model.num_vertices, 3))
+
+        def task(q, view):
+            def run():
+                out[:, q[0]:q[-1] + 1] = scan_trajectory(view, times, 0)[0]
+            return run
+
+        self._workers.run([task(q, view) for q, view in self._dense_views[1]])
+        return out
 
     def simulated_kinematic(self, trajectory, times):
         """``(rows, x)``: the dense vertices whose state differs from x_K (the proxy's and the carried ones) (S,)

@@ -100,7 +100,8 @@ def test_no_colliders_turns_contact_off(tmp_path):
 
     args = build_parser().parse_args(["demo", "--no-colliders"])
     assert args.with_colliders is False and args.export == []
-    assert build_parser().parse_args(["door"]).with_colliders is True
+    door = build_parser().parse_args(["door", "--export", "usd", "--export", "pc2"])
+    assert door.with_colliders is True and door.export == ["usd", "pc2"] and door.export_unit == "m"
 
 
 def test_kdfem_demo_adaptive_windows(tmp_path):

@@ -165,8 +165,8 @@ def contact_report(system, colliders, trajectory, times, X, *, within_m: float =
 
     Returns ``{name: {"min_distance_m", "lower_bound_m", "intersections", "states", "ipctk_states"}}``: ipctk's
     smallest distance [m] over the states it checked (``None`` when no state came within ``within_m``), the
-    smallest lower bound over every state [m] (capped at ``within_m`` where the bound stops refining), how many
-    states ipctk reports intersecting, the states checked and how many of them needed ipctk."""
+    smallest lower bound over every state [m] (tight below ``within_m``, looser above it, where it stops
+    refining), how many states ipctk reports intersecting, the states checked and how many of them needed ipctk."""
     from ..fem.contact import ContactModel
 
     X = np.asarray(X, dtype=np.float64)
@@ -184,7 +184,7 @@ def contact_report(system, colliders, trajectory, times, X, *, within_m: float =
         for k in range(len(t)):
             xo = X[k, cm.nodes]
             lb = float(cm.clearance(xo, C[k], [None if g is None else g[k] for g in K], margin_m=within_m).min())
-            low = min(low, min(lb, within_m))
+            low = min(low, lb)
             if lb > within_m:
                 continue
             exact += 1

@@ -62,7 +62,7 @@ __all__ = [
     "KD_KEY", "KDSettings", "KDFrame", "ObjectEntry", "to_kd", "from_kd", "scene_fps", "scene_unit_m",
     "frame_time_s", "kd_settings", "object_rig", "object_animation", "object_trajectory", "object_model",
     "object_system", "object_window", "object_entry", "kd_state", "apply_kd", "remove_kd_key", "clear_cache",
-    "track_edits", "note_edit",
+    "track_edits", "note_edit", "TRAJECTORY_HOOKS",
 ]
 
 #: Name of the shape key that holds x_KD − x_K (rewritten on every frame change, value 1).
@@ -482,6 +482,13 @@ def object_window(obj, scene):
 
 
 # --- one frame ---------------------------------------------------------------------------------------------------
+#: Functions ``(obj, trajectory) -> trajectory`` that :func:`kd_state` applies to x_K in order before simulating:
+#: the extension's ``register()`` installs :func:`kdfaces.blender.ikd.corrected_trajectory` (the object's stored
+#: IKD correction, x_K + f). A hook list rather than an import, so ikd (which reads this module) is not imported
+#: back from here.
+TRAJECTORY_HOOKS: list = []
+
+
 @dataclass(frozen=True)
 class KDFrame:
     """One frame's KD state: ``x_kd``, ``x_k`` (N, 3) [m, kdfaces axes], ``window_s`` δ [s], ``time_s`` [s],
@@ -513,9 +520,9 @@ def kd_state(obj, scene, frame: float | None = None) -> KDFrame:
     if window == "adaptive":
         window = float(adaptive_windows(e.system, e.trajectory, np.array([t])).window_s[0])
     x_k = e.trajectory.positions(np.array([t]))[0]
-    from .ikd import corrected_trajectory  # x_K + f with the object's stored IKD correction (x_K without one)
-
-    traj = corrected_trajectory(obj, e.trajectory)
+    traj = e.trajectory
+    for hook in TRAJECTORY_HOOKS:  # x_K + f with the object's stored IKD correction (x_K without one)
+        traj = hook(obj, traj)
     x_kd = traj.positions(np.array([t]))[0] if window == 0 else simulate_kd(e.system, traj, np.array([t]), window)[0]
     dev = float(np.sqrt(((x_kd - x_k) ** 2).sum(axis=1)).max())
     return KDFrame(frame=f, time_s=t, window_s=float(window), x_kd=x_kd, x_k=x_k,

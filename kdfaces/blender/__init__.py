@@ -15,7 +15,7 @@ __all__ = ["register", "unregister", "MODULES"]
 
 #: The modules whose ``CLASSES`` tuple is registered, in order (properties first: the panels read them); a module
 #: may also have ``register_extra()`` / ``unregister_extra()`` (handlers, menu entries).
-MODULES = ("props", "ops", "ui", "handlers")
+MODULES = ("props", "ops", "ui", "handlers", "ikd", "bake")
 
 _registered: list = []
 
@@ -35,6 +35,9 @@ def register() -> None:
         extra = getattr(module, "register_extra", None)
         if extra is not None:
             extra()
+    from . import ikd, scene
+
+    scene.TRAJECTORY_HOOKS[:] = [ikd.corrected_trajectory]  # the live KD state includes the stored IKD correction
 
 
 def unregister() -> None:
@@ -47,3 +50,6 @@ def unregister() -> None:
             extra()
     while _registered:
         bpy.utils.unregister_class(_registered.pop())
+    from . import scene
+
+    scene.TRAJECTORY_HOOKS.clear()

@@ -24,6 +24,7 @@ up so that the cache's shot frame k plays there (:func:`mesh_cache_frame_start`)
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -358,10 +359,7 @@ def set_scene_from_shot(scene, shot, *, start_frame: int | None = None) -> tuple
 
 # --- operators ----------------------------------------------------------------------------------------------------
 
-try:
-    import bpy
-except ImportError:  # pragma: no cover - exercised where bpy is missing
-    bpy = None
+bpy = sys.modules.get("bpy")  # loaded inside Blender; not imported elsewhere (see kdfaces.blender.ikd)
 
 CLASSES = ()
 if bpy is not None:

@@ -40,16 +40,16 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import sys
 
 import numpy as np
 
 from kdfaces import defaults
 from kdfaces.errors import KDInputError
 
-try:  # the library functions work without Blender; the operators need it
-    import bpy
-except ImportError:  # pragma: no cover - exercised where bpy is missing
-    bpy = None
+# Blender's module when it is loaded (always, inside Blender): the operators need it, the library functions do not,
+# and importing bpy where it is not loaded yet would start a whole Blender in this process.
+bpy = sys.modules.get("bpy")
 
 __all__ = ["CORRECTION_PROP", "constraint_objects", "hold_markers", "constraint_tables", "constraints_key",
            "empty_table", "hold_table", "solve_object", "store_correction", "object_correction",
@@ -364,12 +364,12 @@ def solve_object(obj, scene, *, warm: bool = True, cancel=None, callback=None):
     from .bake import BakeCancelled, object_shot
     from .scene import object_entry
 
+    e = object_entry(obj, scene)  # a mesh without shape keys, an armature without a head: its error first
     tables = constraint_tables(obj, scene)
     if not any(t.get("enabled", True) for t in tables):
         raise KDInputError(f"{obj.name!r}: no IKD constraints; expected an Empty parented to one of its vertices "
                            "(with kd_frame or a keyframe) or a 'hold' timeline marker")
     shot = object_shot(obj, scene, constraints=tables)
-    e = object_entry(obj, scene)
     if not isinstance(e.window, float):
         raise KDInputError(f"{obj.name!r}: IKD needs one KD window; expected the window mode auto or seconds, "
                            f"not {e.window!r}")

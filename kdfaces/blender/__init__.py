@@ -15,7 +15,7 @@ __all__ = ["register", "unregister", "MODULES"]
 
 #: The modules whose ``CLASSES`` tuple is registered, in order (properties first: the panels read them); a module
 #: may also have ``register_extra()`` / ``unregister_extra()`` (handlers, menu entries).
-MODULES = ("props", "ops", "ui", "handlers", "ikd", "bake")
+MODULES = ("props", "ops", "ui", "handlers", "importer", "ikd", "bake")
 
 _registered: list = []
 

@@ -32,7 +32,8 @@ def export_trajectory(path, positions, times, *, kind: str | None = None, faces=
         path: a file, or a folder (existing, or without a suffix) that receives ``<name>.usdc`` / ``<name>.pc2``.
         kind: ``"usd"`` (binary crate), ``"usda"`` (text), ``"pc2"`` (the rig's vertex order) or ``"pc2-gltf"``
             (the vertex order of the rig's glTF export; needs ``rig``); inferred from the file suffix if None.
-        faces: triangles (M, 3), for USD when no ``rig`` is given (PC2 stores none).
+        faces: triangles (M, 3), for USD when no ``rig`` is given (PC2 stores none); with neither, USD stores
+            the points as ``UsdGeom.Points``.
         fps: frame rate [1/s]; inferred from ``times`` if None.
         name: file stem inside a folder, and the USD prim name.
         rig: the rig the positions belong to: USD then keeps its polygons (quads stay quads) and UVs; ``pc2-gltf``

@@ -155,7 +155,8 @@ def write_usd(path, positions, times, faces, *, fps: float | None = None, prim_n
         path: output file; the extension picks the USD encoding.
         positions: vertex positions [m], shape (F, N, 3).
         times: frame times [s], shape (F,), strictly increasing.
-        faces: triangles, shape (M, 3), indices into N (used when ``polygons`` is None).
+        faces: triangles, shape (M, 3), indices into N (used when ``polygons`` is None); with neither, the
+            points are written as a ``UsdGeom.Points`` prim (a skeleton's joints: ``kdfaces punch``).
         fps: frames (and time codes) per second; inferred from ``times`` if None.
         prim_name: the mesh prim is ``/<prim_name>`` (made a valid USD identifier: "render-test" → "render_test").
         polygons: (counts (P,), corner vertex indices (Σ counts,)): the mesh's own polygons (quads stay quads).
@@ -290,8 +291,10 @@ def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, poly
             raise KDInputError(f"{p}: faces index vertex {int(f.max())} but positions have {n} "
                                f"vertices per frame (mismatched vertex counts)")
         counts, corners = np.full(len(f), 3, dtype=np.int64), f.reshape(-1)
-    else:
-        raise KDInputError(f"{p}: USD point caches need faces, shape (M, 3), or polygons")
+    else:  # points without faces (a skeleton's joints): a UsdGeom.Points prim
+        counts = corners = None
+        if uvs is not None:
+            raise KDInputError(f"{p}: uvs need faces or polygons")
     if uvs is not None and np.shape(uvs) != (len(corners), 2):
         raise KDInputError(f"{p}: uvs: expected one (u, v) per polygon corner, shape ({len(corners)}, 2)")
     if not (np.isfinite(unit_m) and unit_m > 0):
@@ -310,6 +313,10 @@ def _usd_stage(p: Path, stage, n: int, t: np.ndarray, f, *, fps, prim_name, poly
     stage.SetFramesPerSecond(rate)
     stage.SetStartTimeCode(float(codes[0]))
     stage.SetEndTimeCode(float(codes[-1]))
+    if counts is None:
+        points = UsdGeom.Points.Define(stage, f"/{prim_name}")
+        stage.SetDefaultPrim(points.GetPrim())
+        return stage, (points.CreatePointsAttr(), points.CreateExtentAttr(), None), codes, None
     mesh = UsdGeom.Mesh.Define(stage, f"/{prim_name}")
     stage.SetDefaultPrim(mesh.GetPrim())
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
@@ -332,12 +339,13 @@ def _usd_samples(attrs, codes: np.ndarray, x: np.ndarray, unit_m: float, triangl
     points_attr, extent_attr, normals_attr = attrs
     x32 = np.ascontiguousarray(np.asarray(x).astype(np.float32).astype(np.float64) / unit_m, dtype=np.float32)
     extents = np.stack([x32.min(axis=1), x32.max(axis=1)], axis=1)  # (k, 2, 3)
-    normals = vertex_normals_frames(x32, triangles).astype(np.float32)
+    normals = None if triangles is None else vertex_normals_frames(x32, triangles).astype(np.float32)
     for k, code in enumerate(codes):
         tc = Usd.TimeCode(float(code))
         points_attr.Set(Vt.Vec3fArray.FromNumpy(x32[k]), tc)
         extent_attr.Set(Vt.Vec3fArray.FromNumpy(extents[k]), tc)
-        normals_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[k])), tc)
+        if normals is not None:
+            normals_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[k])), tc)
 
 
 def _usd_export(p: Path, save) -> None:
@@ -355,8 +363,9 @@ def _usd_export(p: Path, save) -> None:
 def read_usd(path, *, prim_path: str | None = None) -> PointCache:
     """Read a USD point cache written by :func:`write_usd` (or any stage with one time-sampled mesh).
 
-    ``prim_path`` picks the mesh; default: the first ``UsdGeom.Mesh`` on the stage. Positions are converted to
-    metres with the stage's ``metersPerUnit``.
+    ``prim_path`` picks the mesh; default: the first ``UsdGeom.Mesh`` on the stage, else its first
+    ``UsdGeom.Points`` (a cache written without faces: no faces, polygons, UVs or normals then). Positions are
+    converted to metres with the stage's ``metersPerUnit``.
     """
     from pxr import Tf, Usd, UsdGeom
 
@@ -371,28 +380,36 @@ def read_usd(path, *, prim_path: str | None = None) -> PointCache:
         raise KDInputError(f"{p}: not a readable USD file")
     if prim_path is not None:
         prim = stage.GetPrimAtPath(prim_path)
-        if not prim or not prim.IsA(UsdGeom.Mesh):
-            raise KDInputError(f"{p}: no UsdGeom.Mesh at {prim_path!r}")
+        if not prim or not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Points)):
+            raise KDInputError(f"{p}: no UsdGeom.Mesh (or Points) at {prim_path!r}")
     else:
-        prim = next((q for q in stage.Traverse() if q.IsA(UsdGeom.Mesh)), None)
+        prims = list(stage.Traverse())
+        prim = next((q for q in prims if q.IsA(UsdGeom.Mesh)), None) or \
+            next((q for q in prims if q.IsA(UsdGeom.Points)), None)
         if prim is None:
             raise KDInputError(f"{p}: no UsdGeom.Mesh prim found")
-    mesh = UsdGeom.Mesh(prim)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
-    corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
-    if counts.size and ((counts < 3).any() or counts.sum() != len(corners)):
-        raise KDInputError(f"{p}: mesh {prim.GetPath()}: faceVertexCounts do not match faceVertexIndices")
-    faces = triangulate(counts, corners)
-    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
-    uvs = np.asarray(st.Get(), dtype=np.float64) if st and st.HasValue() else None
+    if prim.IsA(UsdGeom.Mesh):
+        mesh = UsdGeom.Mesh(prim)
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
+        corners = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+        if counts.size and ((counts < 3).any() or counts.sum() != len(corners)):
+            raise KDInputError(f"{p}: mesh {prim.GetPath()}: faceVertexCounts do not match faceVertexIndices")
+        faces = triangulate(counts, corners)
+        st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
+        uvs = np.asarray(st.Get(), dtype=np.float64) if st and st.HasValue() else None
+        normals_attr = mesh.GetNormalsAttr()
+        vertex_normals_ok = mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
+    else:
+        mesh = UsdGeom.Points(prim)
+        counts = corners = faces = uvs = normals_attr = None
+        vertex_normals_ok = False
     attr = mesh.GetPointsAttr()
     codes = np.asarray(attr.GetTimeSamples(), dtype=np.float64)
     samples = [attr.Get(float(c)) for c in codes] if len(codes) else [attr.Get()]
     if len(codes) == 0:
         codes = np.array([float(stage.GetStartTimeCode())])
-    normals_attr = mesh.GetNormalsAttr()
     normals = None
-    if normals_attr and normals_attr.HasValue() and mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex:
+    if vertex_normals_ok and normals_attr and normals_attr.HasValue():
         ns = [normals_attr.Get(float(c)) for c in codes]
         if all(n is not None and len(n) == len(s) for n, s in zip(ns, samples, strict=True)):
             normals = np.stack([np.asarray(n, dtype=np.float64) for n in ns])

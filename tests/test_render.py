@@ -163,10 +163,10 @@ def test_render_shot_outputs(rendered, run):
     assert s["render_s_per_movie_frame_median"] > 0
     # the PC2 cache holds the final (IKD) trajectory
     data = (out / "render-test.pc2").read_bytes()
-    _, _, n, _, _, f = struct.unpack("<12siiffi", data[:32])
+    _, _, n, start, _, f = struct.unpack("<12siiffi", data[:32])
     pts = np.frombuffer(data[32:], dtype="<f4").reshape(f, n, 3)
-    np.testing.assert_allclose(pts[1:], run.ikd, atol=1e-6)  # after the leading copy for Blender frame 1
-    np.testing.assert_array_equal(pts[0], pts[1])
+    np.testing.assert_allclose(pts, run.ikd, atol=1e-6)  # one sample per frame, the first at scene frame 1
+    assert start == 1.0
 
 
 def test_movie_mp4_roundtrip_and_gif_fallback(tmp_path, monkeypatch):

@@ -29,7 +29,7 @@ def test_walkthrough(tmp_path):
     assert s["ikd_converged"] and s["ikd_error_after_m"] <= 1e-5
     assert s["max_secondary_motion_m"] > 1e-3
     cache = read_pc2(tmp_path / "walkthrough.pc2")
-    assert cache.shape[0] == 32 and np.isfinite(cache).all()  # 31 frames after one leading copy (Blender frame 1)
+    assert cache.shape[0] == 31 and np.isfinite(cache).all()  # 31 frames, the first at scene frame 1
     assert (tmp_path / "walkthrough.png").stat().st_size > 10_000
 
 

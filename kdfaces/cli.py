@@ -344,6 +344,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="On the Beat's parent-torque coupling: paper (eq. 8-9 as printed, default) or exact "
                             "(the joint-space inertia's in-board entries); the timing reports both")
     punch.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    punch.add_argument("--export", action="append", default=[], choices=("pc2", "usd", "usda"),
+                       help="also write point caches of the arm's KD and IKD points (punch_kd.*, punch_ikd.*; "
+                            "repeatable)")
     from .viz.punch_viewer import add_view_options
 
     add_view_options(punch)
@@ -358,7 +361,7 @@ def _punch(args) -> dict:
         return punch_view_command(args)
     from .articulated.punch import run_punch
 
-    return run_punch(args.out, movie=args.movie, coupling=args.coupling)
+    return run_punch(args.out, movie=args.movie, coupling=args.coupling, exports=args.export)
 
 
 def finish(status: int, argv) -> int:

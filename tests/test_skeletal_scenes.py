@@ -13,7 +13,7 @@ def punch(tmp_path_factory):
     from kdfaces.articulated.punch import run_punch
 
     out = tmp_path_factory.mktemp("punch")
-    return run_punch(out, movie=False), out
+    return run_punch(out, movie=False, exports=("pc2", "usd")), out
 
 
 def test_punch_summary_keys_and_ikd(punch):
@@ -30,6 +30,27 @@ def test_punch_summary_keys_and_ikd(punch):
     assert json.loads((out / "summary.json").read_text())["ikd"]["iterations"] == ikd["iterations"]
     for name in ("filmstrip_punch.png", "convergence.png", "timing.png"):
         assert (out / name).stat().st_size > 10_000
+
+
+def test_punch_exports_its_kd_and_ikd_points(punch):
+    """``kdfaces punch --export pc2 --export usd``: the arm's simulated points at every frame (100 fps), KD and
+    IKD, frame k at scene frame FRAME_START + k; USD holds them as UsdGeom.Points, the same float32 values."""
+    import numpy as np
+
+    from kdfaces.cli import build_parser
+    from kdfaces.defaults import FRAME_START
+    from kdfaces.io import read_pc2, read_usd
+
+    s, out = punch
+    assert {"punch_kd.pc2", "punch_ikd.pc2", "punch_kd.usdc", "punch_ikd.usdc"} <= set(s["outputs"])
+    kd, ikd = (read_pc2(out / f"punch_{k}.pc2", fps=s["fps"]) for k in ("kd", "ikd"))
+    usd = read_usd(out / "punch_ikd.usdc")
+    assert s["fps"] == 100.0 and kd.positions.shape[0] == s["frames"] == s["kd"]["batch"]
+    assert np.array_equal(usd.positions, ikd.positions) and usd.faces is None and usd.frame_start == FRAME_START
+    np.testing.assert_allclose(usd.times, np.arange(s["frames"]) / 100.0, rtol=0, atol=1e-9)
+    # the IKD edit moves the fist by about the KD miss (centimetres): two different trajectories
+    assert np.abs(ikd.positions - kd.positions).max() > 0.5 * s["kd"]["miss_before_ikd_m"]
+    assert build_parser().parse_args(["punch", "--export", "pc2"]).export == ["pc2"]
 
 
 def test_composite_gains_keep_time_better_than_local_gains(punch):

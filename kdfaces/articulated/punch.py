@@ -44,6 +44,8 @@ PUNCH_SUBSTEP_S = 0.005
 PUNCH_WIDTH_S = 0.12
 PUNCH_TOLERANCE_M = 1e-5
 PUNCH_MAX_ITERATIONS = 50
+#: The point caches `kdfaces punch --export` writes (no pc2-gltf: the punch has no rig).
+PUNCH_EXPORT_KINDS = ("usd", "usda", "pc2")
 #: Durations [s] of the conductor-like sequence (On the Beat §5.2's script: 0.3, 0.3, 0.3, 0.4, 0.545, ...).
 CONDUCTOR_DURATIONS_S = (0.3, 0.3, 0.3, 0.4, 0.545, 0.545, 0.3, 0.3, 0.4, 0.4, 0.545, 0.545)
 
@@ -229,9 +231,14 @@ def _arm_panel(ax, model, q, target, *, title=None, color="#1f5fa8", ghost=None)
 
 def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = PUNCH_WINDOW_S,
               substep_s: float = PUNCH_SUBSTEP_S, width_s: float = PUNCH_WIDTH_S, update: str = "paper",
-              movie: bool = True, coupling: str = "paper") -> dict:
+              movie: bool = True, coupling: str = "paper", exports=()) -> dict:
     """Run the punch and the timing experiment; write filmstrip_punch.png, convergence.png, timing.png,
     movie.mp4 (unless ``movie`` is False) and summary.json to ``out``. Returns the summary.
+
+    ``exports`` (kinds among ``usd``, ``usda``, ``pc2``: ``kdfaces punch --export``) also writes point caches of
+    the arm's simulated points [m] at every frame (``traj.fps``, 100 fps): ``punch_kd.<ext>`` (the relaxed KD) and
+    ``punch_ikd.<ext>`` (KD after IKD), frame k at scene frame :data:`~kdfaces.defaults.FRAME_START` + k; USD
+    stores them as ``UsdGeom.Points`` (a skeleton has no faces).
 
     The IKD solve of the punch uses ``update`` ("paper": eq. 5 with a fresh trial every iteration, the paper's §6.3
     convergence claim; "secant" also works) to a 0.01 mm tolerance; the summary reports the error after 6
@@ -239,12 +246,17 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = PUNCH_WIND
     the top of ``summary["timing"]`` ("paper": eq. 8–9 as printed, "exact": the joint-space inertia's in-board
     entries); ``summary["timing"]["couplings"]`` and timing.png report the composite controller with both."""
     from ..ikd import GaussianBasis, end_effector_constraint, solve_ikd, velocity_constraint
+    from ..io.export import EXPORT_KINDS, export_trajectory
     from ..io.summary import write_summary
     from ..kd import simulate_kd
     from ..viz.figures import save_figure, subplots
 
     if coupling not in COUPLINGS:
         raise KDInputError(f"coupling {coupling!r} unknown; expected one of {COUPLINGS}")
+    bad = sorted(set(exports) - set(PUNCH_EXPORT_KINDS))
+    if bad:
+        raise KDInputError(f"punch --export {bad[0]!r}: expected one of {list(PUNCH_EXPORT_KINDS)} (pc2-gltf needs a "
+                           f"rig's glTF; the punch is a skeleton)")
     out = Path(out)
     model = arm_chain_model()
     system = SkeletalSystem(model, settle_time_s=PUNCH_SETTLE_S, engine=engine, substep_s=substep_s,
@@ -356,8 +368,14 @@ def run_punch(out, *, engine: str = DEFAULT_ENGINE, window_s: float = PUNCH_WIND
             canvas.draw()
             frames_img.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
         outputs.append(write_movie(out / "movie.mp4", [side_by_side([f]) for f in frames_img], fps=25.0))
+    for kind in dict.fromkeys(exports):
+        for label, X in (("kd", X_kd), ("ikd", X_ikd)):
+            outputs.append(export_trajectory(out / f"punch_{label}{EXPORT_KINDS[kind]}", X, frames, kind=kind,
+                                             fps=traj.fps, name=f"punch_{label}"))
     ratio = loc["mean_abs_timing_error_s"] / max(comp["mean_abs_timing_error_s"], 1e-12)
     summary = {
+        "fps": float(traj.fps),
+        "frames": len(frames),
         "skeleton": {"engine": engine, "joints": list(model.skeleton.names), "dofs": model.dofs,
                      "masses_kg": model.masses.round(3).tolist()},
         "kd": {"window_s": window_s, "substep_s": substep_s, "settle_time_s": PUNCH_SETTLE_S, "coupling": coupling,

@@ -404,7 +404,7 @@ def test_reopen_and_render(sessions):
 # --- the library side, no Blender ---------------------------------------------------------------------------------
 
 def test_animation_table_round_trips_exactly(tmp_path):
-    from kdfaces.blender.bake import write_shot_file
+    from kdfaces.blender.shot import write_shot_file
     from kdfaces.io.rigfiles import load_default_rig
     from kdfaces.motion import FaceAnimation, KeyframeCurve, ShapeTrack
     from kdfaces.motion.joints import JointDrive, SkeletonAnimation
@@ -434,7 +434,7 @@ def test_animation_table_round_trips_exactly(tmp_path):
 
 
 def test_animation_table_refuses_what_the_schema_cannot_say():
-    from kdfaces.blender.bake import animation_table
+    from kdfaces.blender.shot import animation_table
     from kdfaces.motion import FaceAnimation, KeyframeCurve, ShapeTrack
     from kdfaces.motion.joints import SkeletonAnimation
 
@@ -447,7 +447,8 @@ def test_animation_table_refuses_what_the_schema_cannot_say():
 
 
 def test_bake_shot_cancel_writes_nothing(tmp_path):
-    from kdfaces.blender.bake import BakeCancelled, bake_shot, shot_table
+    from kdfaces.blender.bake import BakeCancelled, bake_shot
+    from kdfaces.blender.shot import shot_table
     from kdfaces.io.rigfiles import load_default_rig
     from kdfaces.motion import FaceAnimation, KeyframeCurve, ShapeTrack
     from kdfaces.shots.shotfile import parse_shot

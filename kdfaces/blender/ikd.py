@@ -27,7 +27,7 @@ object's local coordinates in Blender units, times the scene's unit scale, with 
 toolkit's y up (:func:`kdfaces.blender.scene.to_kd`).
 
 "Solve IKD" (:func:`solve_object`) runs :func:`~kdfaces.ikd.solve_ikd` on the object's shot
-(:func:`kdfaces.blender.bake.object_shot`) with the shot's solver settings and automatic window (as ``kdfaces
+(:func:`kdfaces.blender.shot.object_shot`) with the shot's solver settings and automatic window (as ``kdfaces
 run``), warm-started from the stored correction, and stores the correction's slots and values in the object's ID
 property ``kd_ikd`` (:func:`store_correction`) — the animation keys are never touched. :func:`object_correction`
 rebuilds the :class:`~kdfaces.ikd.corrections.Correction` (the live KD handler calls it and simulates
@@ -341,7 +341,7 @@ def corrected_trajectory(obj, trajectory):
 # --- the solve ----------------------------------------------------------------------------------------------------
 
 def _solve_key(obj, scene, tables) -> str:
-    from .bake import object_shot_settings
+    from .shot import object_shot_settings
 
     return constraints_key(tables, object_shot_settings(obj, scene))
 
@@ -351,25 +351,25 @@ def solve_object(obj, scene, *, warm: bool = True, cancel=None, callback=None):
     :class:`~kdfaces.ikd.IKDResult`.
 
     It solves on what the live KD shows (:func:`kdfaces.blender.scene.object_entry`: the object's system, x_K and
-    window δ), for the constraints of the object's shot (:func:`kdfaces.blender.bake.object_shot`: the same
+    window δ), for the constraints of the object's shot (:func:`kdfaces.blender.shot.object_shot`: the same
     :class:`~kdfaces.ikd.Constraint` objects ``kdfaces run`` builds from the exported shot file), with the shot's
     ``[solver]`` settings. ``warm``: start from the stored correction's slot values where the slots match (a moved
     Empty: a few sweeps). ``cancel()`` is asked before every sweep (True: nothing is stored, and
-    :class:`~kdfaces.blender.bake.BakeCancelled` is raised); ``callback(sweep, errors)`` after each. Raises
+    :class:`~kdfaces.blender.shot.Cancelled` is raised); ``callback(sweep, errors)`` after each. Raises
     :class:`KDInputError` with one line when there is nothing to solve or the constraints are unreadable.
     """
     from kdfaces.ikd.solver import solve_ikd
     from kdfaces.resources import single_threaded_blas
 
-    from .bake import BakeCancelled, object_shot
     from .scene import object_entry
+    from .shot import Cancelled, object_shot
 
     e = object_entry(obj, scene)  # a mesh without shape keys, an armature without a head: its error first
     tables = constraint_tables(obj, scene)
     if not any(t.get("enabled", True) for t in tables):
         raise KDInputError(f"{obj.name!r}: no IKD constraints; expected an Empty parented to one of its vertices "
                            "(with kd_frame or a keyframe) or a 'hold' timeline marker")
-    shot = object_shot(obj, scene, constraints=tables)
+    shot = object_shot(obj, scene, tables)
     if not isinstance(e.window, float):
         raise KDInputError(f"{obj.name!r}: IKD needs one KD window; expected the window mode auto or seconds, "
                            f"not {e.window!r}")
@@ -381,7 +381,7 @@ def solve_object(obj, scene, *, warm: bool = True, cancel=None, callback=None):
         result = solve_ikd(e.system, e.trajectory, constraints, window_s=e.window, step_s=shot.step_s,
                            warm_start=warm_start, cancel=cancel, callback=callback, **shot.solver_options())
     if result.reason == "cancelled":
-        raise BakeCancelled(f"IKD solve of {obj.name!r} cancelled; the stored correction is unchanged")
+        raise Cancelled(f"IKD solve of {obj.name!r} cancelled; the stored correction is unchanged")
     report = {"reason": result.reason, "converged": bool(result.converged), "iterations": int(result.iterations),
               "wall_s": float(result.wall_s), "window_s": float(e.window),
               "labels": [c.label for c in result.constraints],

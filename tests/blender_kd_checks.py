@@ -160,6 +160,20 @@ def main(cfg: dict) -> dict:
                        and o.data.shape_keys else (), bool(getattr(o, "kdfaces", None) and o.kdfaces.enabled))
                       for o in bpy.data.objects))
 
+    # saved and reopened (as `blender -b file.blend -f 37` does): the persistent handler recomputes frame 37
+    if cfg.get("reopen", True):
+        blend = os.path.join(os.path.dirname(cfg["out"]), "kd.blend")
+        scene.frame_set(int(cfg["frames"][-1]))
+        bpy.ops.wm.save_as_mainfile(filepath=blend)
+        name = obj.name
+        bpy.ops.wm.open_mainfile(filepath=blend)
+        scene = bpy.context.scene
+        obj = bpy.data.objects[name]
+        scene.frame_set(int(cfg["frames"][0]))
+        arrays["reopened_37"] = _evaluated(bpy, np, obj)
+        res["reopened_enabled"] = bool(obj.kdfaces.enabled)
+        bpy.context.view_layer.objects.active = obj
+        ref = obj.data.shape_keys.reference_key
     bad = {}
     bpy.ops.mesh.primitive_cube_add()
     cube = bpy.context.active_object

@@ -164,6 +164,14 @@ def test_an_edit_is_seen_on_the_next_frame(blender_run):
     assert np.array_equal(arrays["restored_37"], arrays["visit_0"])
 
 
+def test_a_saved_file_reopened_recomputes_the_frame(blender_run):
+    """Save at frame 1, reopen, set frame 37 (what ``blender -b file.blend -f 37`` does before rendering): the
+    persistent handler recomputes it, bit for bit the first visit's state."""
+    res, arrays, _, _ = blender_run
+    assert res["reopened_enabled"]
+    assert np.array_equal(arrays["reopened_37"], arrays["visit_0"])
+
+
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"),
     ("armature_without_head", "has no head bone"),

@@ -242,6 +242,7 @@ class ObjectEntry:
     frame_cache: dict = field(default_factory=dict)
     generation: int | None = None
     quick_key: tuple = ()
+    basis_co: np.ndarray | None = None  # (N, 3) float32 Blender coordinates of the basis, as hashed
 
     def close(self) -> None:
         if self.system is not None:
@@ -413,6 +414,7 @@ def object_entry(obj, scene) -> ObjectEntry:
     if new.rig_key != rig_key:
         new.rig, new.model, new.trajectory = _build_rig(obj, scene, ref, shapes, blocks), None, None
         new.rig_key = rig_key
+    new.basis_co = blocks[ref.name]
     if new.anim_key != anim_key or new.trajectory is None:
         new.animation = _build_animation(obj, scene, shapes)
         new.trajectory = KinematicTrajectory(new.rig, new.animation, strict=True)
@@ -546,7 +548,8 @@ def apply_kd(obj, scene, frame: float | None = None) -> KDFrame:
     ref, _ = _shape_blocks(obj)
     kb = _kd_block(obj, create=True)
     n = len(obj.data.vertices)
-    basis = _co(ref, n)
+    e = _ENTRIES.get(_entry_id(obj))
+    basis = e.basis_co if e is not None and e.basis_co is not None else _co(ref, n)  # as hashed this generation
     offset = from_kd(state.x_kd - state.x_k, scene_unit_m(scene)).astype(np.float32)
     kb.relative_key = ref
     kb.data.foreach_set("co", (basis + offset).reshape(-1))

@@ -250,3 +250,83 @@ def test_minimal_external_bin_buffer(tmp_path):
     (tmp_path / "tri data.bin").unlink()
     with pytest.raises(KDInputError, match="not found"):
         load_gltf_rig(tmp_path / "tri.gltf")
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the exports' frame numbering and vertex order; files re-exported by another tool (Blender's tests run in
+# tests/test_blender_imports.py; these edit our own file the way Blender's re-export changes it)
+
+
+def test_glb_keys_sit_at_scene_frames_and_load_back_as_the_shots_times(tmp_path, default_rig):
+    from kdfaces.defaults import FRAME_START
+
+    curve = KeyframeCurve.create([0.5, 0.8, 1.5], [[0.0], [1.0], [0.2]])
+    anim = FaceAnimation(tracks=(ShapeTrack(("jawOpen",), curve),), start_s=0.5, end_s=1.5, fps=25.0, name="late")
+    path = save_gltf(default_rig, tmp_path / "late.gltf", animation=anim)
+    doc = json.loads(path.read_text())
+    sampler = doc["animations"][0]["samplers"][0]
+    times = np.asarray(doc["accessors"][sampler["input"]]["min"] + doc["accessors"][sampler["input"]]["max"])
+    # shot frame 0 (t = 0.5 s) at (FRAME_START + 0) / fps: Blender keys frame t · fps = FRAME_START
+    np.testing.assert_allclose(times * 25.0, [FRAME_START, FRAME_START + 25], rtol=0, atol=1e-5)
+    assert doc["animations"][0]["extras"] == {"kdfaces_fps": 25.0, "kdfaces_frame_start": FRAME_START,
+                                              "kdfaces_start_s": 0.5}
+    back = load_gltf_animation(path)
+    assert (back.start_s, back.end_s) == (0.5, 1.5)  # whole frames snapped: exactly the shot's times
+    del doc["animations"][0]["extras"]  # another tool's file: its times as written
+    (tmp_path / "plain.gltf").write_text(json.dumps(doc))
+    assert load_gltf_animation(tmp_path / "plain.gltf").start_s == pytest.approx(FRAME_START / 25.0, abs=1e-7)
+
+
+def test_gltf_vertices_are_the_rigs_then_the_seam_copies(default_rig):
+    from kdfaces.io.gltf import _split_at_uv_seams, gltf_vertex_map
+
+    rig = default_rig
+    src, faces, uv = _split_at_uv_seams(rig)
+    n = rig.num_vertices
+    assert np.array_equal(gltf_vertex_map(rig), src) and np.array_equal(src[:n], np.arange(n)) and len(src) > n
+    assert np.array_equal(src[faces], rig.faces)  # the same triangles
+    # each polygon corner keeps its own UV (glTF's per-vertex UVs reproduce the rig's per-corner ones)
+    from kdfaces.io.obj import triangulate
+
+    tri_corner = triangulate(rig.polygon_counts, np.arange(len(rig.polygon_corners)))
+    np.testing.assert_array_equal(uv[faces.reshape(-1)], rig.uvs[tri_corner.reshape(-1)])
+
+
+def _reexported(tmp_path, rig, *, stale: str | None, generator: str = "Khronos glTF Blender I/O v4.5.49"):
+    """Our .gltf changed the way Blender's re-export changes it: its generator, and the source-vertex accessor
+    gone (without custom properties) or ``stale`` (an index out of range, or one naming another accessor)."""
+    doc = json.loads(save_gltf(rig, tmp_path / "src.gltf").read_text())
+    mesh = doc["meshes"][0]
+    index = mesh["extras"]["kdfaces_source_vertices"]
+    if stale is None:
+        del mesh["extras"]["kdfaces_source_vertices"]
+    elif stale == "out_of_range":
+        mesh["extras"]["kdfaces_source_vertices"] = len(doc["accessors"]) + 3
+    else:  # the POSITION accessor: float VEC3, not a map
+        mesh["extras"]["kdfaces_source_vertices"] = mesh["primitives"][0]["attributes"]["POSITION"]
+    assert isinstance(index, int)
+    doc["asset"]["generator"] = generator
+    path = tmp_path / f"re_{stale}.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize("stale", [None, "out_of_range", "another_accessor"])
+def test_a_re_exported_rig_loads_to_the_rigs_vertices(tmp_path, default_rig, stale):
+    rig = default_rig
+    back = load_gltf_rig(_reexported(tmp_path, rig, stale=stale))
+    assert back.num_vertices == rig.num_vertices  # seam copies merged (4,986 glTF vertices back to 4,774)
+    bound = 2.0**-24 * np.abs(rig.neutral).max()
+    assert np.abs(back.neutral - rig.neutral).max() <= bound  # in the rig's order: first appearance
+    np.testing.assert_array_equal(back.deltas, rig.deltas)
+    np.testing.assert_array_equal(back.faces, rig.faces)
+    from kdfaces.io.obj import triangulate
+
+    corners = triangulate(rig.polygon_counts, np.arange(len(rig.polygon_corners))).reshape(-1)
+    np.testing.assert_allclose(back.uvs, rig.uvs[corners], rtol=0, atol=1e-7)  # float32, v flipped twice
+
+
+def test_other_tools_files_keep_their_vertices(tmp_path, default_rig):
+    """No kdfaces marker and not Blender: coincident vertices are the file's business (a tool may mean them)."""
+    path = _reexported(tmp_path, default_rig, stale=None, generator="some other exporter")
+    assert load_gltf_rig(path).num_vertices > default_rig.num_vertices

@@ -95,7 +95,7 @@ def _follow(args) -> dict:
     from .scenes.follow import run_follow
 
     return run_follow(args.out, with_colliders=args.with_colliders, export=args.export,
-                      export_unit=args.export_unit, frame_stride=args.frame_stride)
+                      export_unit=args.export_unit, export_stride=args.frame_stride)
 
 
 def _braid(args) -> dict:

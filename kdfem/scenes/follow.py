@@ -38,7 +38,7 @@ def _head_yaw_deg(trajectory, times) -> np.ndarray:
 
 def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = defaults.HAT_STEP_S,
                threads: int = defaults.THREADS, with_colliders: bool = defaults.HAT_COLLIDERS, export=(),
-               export_unit: str = "m", frame_stride: int = 1) -> dict:
+               export_unit: str = "m", export_stride: int = 1) -> dict:
     """Run the head follow-through demo; write filmstrip_follow.png, head_yaw.png and summary.json to ``out``.
     Returns the summary. ``threads``: CPU threads of the face's and the hat's KD batches.
 
@@ -46,7 +46,7 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = d
     (:func:`kdfem.geometry.colliders.contact_report`: minimum distance, intersections) of every step of the hat's
     full simulation on the KD head and of its KD states, and the cost of a hat KD state with the collider against
     without. ``export``: point-cache kinds (``"usd"``, ``"usda"``, ``"pc2"``) of the hat's and the face's KD on the
-    KD head (``hat_kd``, ``face_kd``) at every ``frame_stride``-th frame of the shot, in metres or
+    KD head (``hat_kd``, ``face_kd``) at every ``export_stride``-th frame of the shot, in metres or
     (``export_unit="rig"``) the rig's unit."""
     from kdfaces.articulated import SkeletalSystem, kd_joint_trajectory, neck_chain_model
     from kdfaces.dynamics import FaceSystem
@@ -91,7 +91,7 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = d
     face_window = automatic_window(face, face_K).window_s
     from kdfaces.errors import check_count
 
-    frame_stride = check_count(frame_stride, "frame_stride")
+    export_stride = check_count(export_stride, "export_stride")
     hat, surf, _ = default_hat_system(rig, cache_dir=out / ".cache", threads=threads)
     free = hat
     if with_colliders:
@@ -133,13 +133,13 @@ def run_follow(out, *, settle_time_s: float = FOLLOW_SETTLE_S, step_s: float = d
         from kdfaces.io.export import export_trajectory
 
         unit = rig.source_unit_m if export_unit == "rig" else 1.0
-        te = anim.frame_times[::frame_stride]
+        te = anim.frame_times[::export_stride]
         hat_x = hat.surface(simulate_kd(hat, kd_head, te, 0.568, step_s=0.01))
         face_x = np.asarray(simulate_kd(face, face_KD, te, face_window), dtype=np.float64)
         for kind in dict.fromkeys(export):
             outputs.append(export_trajectory(out, hat_x, te, kind=kind, faces=surf.faces,
-                                             fps=anim.fps / frame_stride, name="hat_kd", unit_m=unit))
-            outputs.append(export_trajectory(out, face_x, te, kind=kind, fps=anim.fps / frame_stride,
+                                             fps=anim.fps / export_stride, name="hat_kd", unit_m=unit))
+            outputs.append(export_trajectory(out, face_x, te, kind=kind, fps=anim.fps / export_stride,
                                              name="face_kd", rig=rig, unit_m=unit))
         summary["outputs"] = [str(p.relative_to(out)) for p in outputs]
     write_summary(out, summary)

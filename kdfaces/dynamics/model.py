@@ -280,10 +280,10 @@ class FaceModel:
         head) "auto" is every vertex.
 
         ``proxy`` (:mod:`kdfaces.dynamics.proxy`): "auto" (default) simulates a proxy of
-        :data:`~kdfaces.dynamics.proxy.AUTO_PROXY_VERTICES` vertices and carries the dense mesh with it when the
+        :data:`~kdfaces.rig.proxy.AUTO_PROXY_VERTICES` vertices and carries the dense mesh with it when the
         region has more than :data:`kdfaces.defaults.PROXY_ABOVE_VERTICES` non-rigid vertices (else, and with
         None, the dense mesh itself, as before); an integer: a proxy of about that many vertices; or a
-        :class:`~kdfaces.dynamics.proxy.FaceProxy` built beforehand.
+        :class:`~kdfaces.rig.proxy.FaceProxy` built beforehand.
         """
         if isinstance(region, str):
             if region != "auto":
@@ -328,7 +328,7 @@ def _mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
 def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
     """:meth:`FaceModel.from_rig` with a proxy (``proxy``: "auto", a vertex count or a FaceProxy; "auto" below
     the threshold: the dense model)."""
-    from .proxy import AUTO_PROXY_VERTICES, FaceProxy, build_proxy
+    from ..rig.proxy import AUTO_PROXY_VERTICES, FaceProxy, build_proxy
 
     n = rig.num_vertices
     reg = _region(region, n)

@@ -1,0 +1,212 @@
+"""The proxy of a dense face rig (issue #29): a subset of its vertices with triangles of its own, and W, the
+sparse embedding that carries the dense mesh with it. The dynamics part is :mod:`kdfaces.dynamics.proxy`, where the
+design is described."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import KDInputError
+
+__all__ = ["FaceProxy", "build_proxy", "embedding_matrix", "shape_features", "proxy_rig", "MIN_PROXY_VERTICES",
+           "AUTO_PROXY_VERTICES", "DECIMATE_SHAPE_WEIGHT", "EMBED_NEIGHBOURS", "EMBED_COMPONENTS"]
+
+#: The proxy's vertex count when ``FaceModel.from_rig(proxy="auto")`` turns it on: about the default head's (4.8k
+#: vertices, 5 ms per KD state on one core), where its dynamics are resolved; a 75k face then costs the proxy's steps
+#: plus its own x_K and one sparse W product.
+AUTO_PROXY_VERTICES = 4_000
+#: Weight of the blend-shape displacements against the rest position in the edge lengths the decimation collapses
+#: shortest first (dimensionless; 0: geometry only). On the demo at 19k → 6k it lowers the 99th percentile of the
+#: proxy's error from 0.55 ε to 0.43 ε (docs/dense_rigs.md).
+DECIMATE_SHAPE_WEIGHT = 10.0
+#: A proxy needs at least this many vertices (a face of fewer cannot carry a face's dynamics).
+MIN_PROXY_VERTICES = 100
+
+
+@dataclasses.dataclass(frozen=True)
+class FaceProxy:
+    """A proxy of a dense face rig.
+
+    Attributes:
+        vertices: the proxy's vertices, sorted indices (P,) int64 into the dense rig's N vertices.
+        faces: the proxy's triangles (G, 3) int64, numbered 0..P−1 (into ``vertices``).
+        weights: W, (N, P) scipy CSR float64: dense deviation = W · proxy deviation (see the module docstring).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    weights: sp.csr_matrix
+
+    @property
+    def num_vertices(self) -> int:
+        """P, the proxy's vertex count."""
+        return len(self.vertices)
+
+    @property
+    def dense_faces(self) -> np.ndarray:
+        """The proxy's triangles in dense numbering (G, 3) int64."""
+        return self.vertices[self.faces]
+
+
+#: W's candidate triangles for a dense vertex: those around its this many nearest proxy vertices in shape space.
+EMBED_NEIGHBOURS = 6
+#: Shape space is reduced to this many principal components for the neighbour search and the fit.
+EMBED_COMPONENTS = 24
+
+
+def shape_features(neutral: np.ndarray, deltas: np.ndarray | None) -> np.ndarray:
+    """Each vertex as a point of shape space (N, D) [m]: its rest position and its displacement in every blend shape,
+    reduced to the :data:`EMBED_COMPONENTS` principal directions. Two vertices close at rest but moved apart by a
+    shape (upper and lower lip by the jaw, the eyelids by a blink) are far apart here."""
+    x = np.asarray(neutral, dtype=np.float64)
+    parts = [x]
+    if deltas is not None and len(deltas):
+        parts.append(np.asarray(deltas, dtype=np.float64).transpose(1, 0, 2).reshape(len(x), -1))
+    f = np.concatenate(parts, axis=1)
+    f -= f.mean(axis=0)
+    if f.shape[1] <= EMBED_COMPONENTS:
+        return f
+    _, vecs = np.linalg.eigh(f.T @ f)  # principal directions: the covariance's leading eigenvectors
+    return f @ vecs[:, ::-1][:, :EMBED_COMPONENTS]
+
+
+def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, proxy_faces: np.ndarray,
+                     rows: np.ndarray, deltas: np.ndarray | None = None) -> sp.csr_matrix:
+    """W (N, P) CSR for the dense vertices ``rows`` (indices into the N ``dense_vertices`` (N, 3) [m]), zero rows
+    elsewhere; proxy vertices (``proxy_vertices`` (P,), indices into N) get identity rows.
+
+    A dense vertex's row is the barycentric coordinates of its projection onto one proxy triangle (``proxy_faces``
+    (G, 3), indices into the P proxy vertices), clipped to the triangle: among the triangles around its
+    :data:`EMBED_NEIGHBOURS` nearest proxy vertices in shape space (:func:`shape_features` with the blend-shape
+    ``deltas`` (K, N, 3) [m]), the one whose interpolated rest position *and shape displacements* are nearest to the
+    vertex's own. (Nearest in space alone would embed an upper-lip vertex in the lower lip: their rest positions
+    are a millimetre apart, their jaw-open displacements centimetres.)"""
+    from scipy.spatial import cKDTree
+
+    n, p = len(dense_vertices), len(proxy_vertices)
+    v = np.asarray(dense_vertices, dtype=np.float64)
+    pf = np.asarray(proxy_faces, dtype=np.int64)
+    own = np.full(n, -1, dtype=np.int64)
+    own[proxy_vertices] = np.arange(p)
+    rows = np.asarray(rows, dtype=np.int64)
+    rest = rows[own[rows] < 0]
+    r_rows, r_cols, r_vals = [proxy_vertices], [np.arange(p)], [np.ones(p)]
+    if len(rest):
+        feat = shape_features(v, deltas)
+        pfeat = feat[proxy_vertices]
+        k = min(EMBED_NEIGHBOURS, p)
+        _, near = cKDTree(pfeat).query(feat[rest], k=k)
+        near = near.reshape(len(rest), k)
+        # proxy vertex → incident triangles (CSR)
+        vt = sp.csr_matrix((np.ones(pf.size), (pf.ravel(), np.repeat(np.arange(len(pf)), 3))), shape=(p, len(pf)))
+        best_err = np.full(len(rest), np.inf)
+        best_tri = np.zeros(len(rest), dtype=np.int64)
+        best_bary = np.zeros((len(rest), 3))
+        pv = v[proxy_vertices]
+        for c0 in range(0, len(rest), 8192):
+            q = np.arange(c0, min(c0 + 8192, len(rest)))
+            cand = sp.csr_matrix(vt[near[q].ravel()])  # one row per (query, neighbour)
+            counts = np.diff(cand.indptr)
+            qi = np.repeat(np.repeat(q, k), counts)
+            tri = cand.indices
+            corners = pf[tri]
+            a, b, c = pv[corners[:, 0]], pv[corners[:, 1]], pv[corners[:, 2]]
+            bary = _projected_barycentrics(v[rest[qi]], a, b, c)
+            fit = np.einsum("mj,mjd->md", bary, pfeat[corners])
+            err = ((fit - feat[rest[qi]]) ** 2).sum(axis=1)
+            order = np.lexsort((err, qi))  # per query, the best candidate first
+            first = order[np.r_[True, qi[order][1:] != qi[order][:-1]]]
+            best_err[qi[first]] = err[first]
+            best_tri[qi[first]] = tri[first]
+            best_bary[qi[first]] = bary[first]
+        r_rows.append(np.repeat(rest, 3))
+        r_cols.append(pf[best_tri].ravel())
+        r_vals.append(best_bary.ravel())
+    W = sp.csr_matrix((np.concatenate(r_vals), (np.concatenate(r_rows), np.concatenate(r_cols))), shape=(n, p))
+    W.sum_duplicates()
+    W.eliminate_zeros()
+    return W
+
+
+def _projected_barycentrics(x, a, b, c) -> np.ndarray:
+    """Barycentric coordinates (M, 3) of points ``x`` (M, 3) projected onto the planes of triangles ``a, b, c``
+    (M, 3 each), clipped to the triangle (non-negative, summing to one)."""
+    e0, e1, d = b - a, c - a, x - a
+    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
+    d20, d21 = (d * e0).sum(1), (d * e1).sum(1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) > 1e-30, den, 1e-30)
+    wb = (d11 * d20 - d01 * d21) / den
+    wc = (d00 * d21 - d01 * d20) / den
+    bary = np.clip(np.stack([1.0 - wb - wc, wb, wc], axis=1), 0.0, None)
+    s = bary.sum(axis=1, keepdims=True)
+    return np.where(s > 0, bary / np.where(s > 0, s, 1.0), 1.0 / 3.0)
+
+
+def build_proxy(vertices: np.ndarray, faces: np.ndarray, simulated: np.ndarray, target_vertices: int,
+                deltas: np.ndarray | None = None) -> FaceProxy:
+    """A proxy of about ``target_vertices`` vertices for the dense mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3),
+    whose dynamics are simulated on the vertices ``simulated`` (an (N,) bool mask: the moving region, rigid parts
+    excluded). The triangles with every corner simulated are decimated (libigl ``decimate``, shortest edges first
+    in shape space — rest position and :data:`DECIMATE_SHAPE_WEIGHT` × the blend-shape ``deltas`` (K, N, 3) [m] —
+    to 2·target faces), each surviving vertex snapped to the dense vertex it was born from; W embeds every simulated
+    vertex (:func:`embedding_matrix`)."""
+    import igl
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    sim = np.asarray(simulated, dtype=bool)
+    if isinstance(target_vertices, bool) or not isinstance(target_vertices, int | np.integer) \
+            or target_vertices < MIN_PROXY_VERTICES:
+        raise KDInputError(f"proxy: expected a vertex count >= {MIN_PROXY_VERTICES}, got {target_vertices!r}")
+    sub = f[sim[f].all(axis=1)]
+    used = np.unique(sub)
+    if len(used) <= target_vertices:
+        raise KDInputError(f"proxy: the simulated surface has {len(used)} vertices, not more than the proxy's "
+                           f"{target_vertices}; expected a proxy smaller than the dense face (or proxy=None)")
+    local = np.full(len(v), -1, dtype=np.int64)
+    local[used] = np.arange(len(used))
+    # edges are measured in shape space (rest position and, scaled by DECIMATE_SHAPE_WEIGHT, the blend-shape
+    # displacements): where the shapes deform the skin fast (lips, mouth corners, eyelids) edges are long and kept
+    space = v[used]
+    if deltas is not None and len(deltas):
+        space = np.hstack([space, DECIMATE_SHAPE_WEIGHT * shape_features(v, deltas)[used]])
+    # V − E + F = χ: a triangle mesh has about twice as many faces as vertices
+    _, g, _, birth = igl.decimate(np.ascontiguousarray(space), np.ascontiguousarray(local[sub], dtype=np.int32),
+                                  int(2 * target_vertices))
+    g = np.asarray(g, dtype=np.int64)
+    born = used[np.asarray(birth, dtype=np.int64)]  # dense index of each decimated vertex
+    referenced = np.unique(g)
+    g = np.searchsorted(referenced, g)
+    born = born[referenced]
+    order = np.argsort(born)
+    proxy_vertices = born[order]
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    proxy_faces = rank[g]
+    if len(np.unique(proxy_vertices)) != len(proxy_vertices) or len(proxy_vertices) < MIN_PROXY_VERTICES:
+        raise KDInputError(f"proxy: decimating the face's {len(used)} vertices gave {len(proxy_vertices)} distinct "
+                           "ones; expected a manifold face surface")
+    W = embedding_matrix(v, proxy_vertices, proxy_faces, np.flatnonzero(sim), deltas)
+    return FaceProxy(vertices=proxy_vertices, faces=proxy_faces, weights=W)
+
+
+def proxy_rig(rig, proxy: FaceProxy, *, name: str | None = None):
+    """The proxy as a :class:`~kdfaces.rig.BlendshapeRig`: the dense rig's neutral, shape deltas, skin weights and
+    parts at the proxy's vertices (their rows of the dense rig, so its x_K is the dense x_K's rows exactly) and the
+    proxy's triangles; shape names, in-betweens, unit and joints kept."""
+    from .blendshapes import BlendshapeRig
+    from .skeleton import Skeleton
+
+    idx = proxy.vertices
+    skel = rig.skeleton
+    if skel is not None:
+        skel = Skeleton(skel.names, skel.positions, skel.parents, skel.weights[idx])
+    parts = None if rig.vertex_parts is None else rig.vertex_parts[idx]
+    return BlendshapeRig.create(rig.neutral[idx], rig.deltas[:, idx], proxy.faces, rig.shape_names, skeleton=skel,
+                                name=f"{rig.name}_proxy{len(idx)}" if name is None else name,
+                                part_names=rig.part_names if parts is not None else (), vertex_parts=parts,
+                                source_unit_m=rig.source_unit_m, inbetweens=rig.inbetweens, check_units=False)

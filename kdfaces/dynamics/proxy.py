@@ -68,7 +68,7 @@ class ProxyFaceSystem(FaceSystem):
         self._carried = carried.astype(np.int64)
         self._carry = sp.csr_matrix(W[carried])  # (E, P)
         self._deviating = np.union1d(model.region, carried).astype(np.int64)
-        self._proxy_view = (None, None)  # (trajectory, its view over the proxy's vertices), the last observed
+        self._dense_views = (None, [])  # (trajectory, [(vertex part, its restricted view)]) for observe's threads
 
     @property
     def proxy_vertices(self) -> np.ndarray:
@@ -78,23 +78,45 @@ class ProxyFaceSystem(FaceSystem):
     def observe(self, state) -> np.ndarray:
         """Dense vertex positions of every member [m], (B, N, 3) float64: the proxy's vertices from the state, the
         carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64, the trajectory's own
-        values). :meth:`FaceSystem.observe` gives the state and x_K elsewhere (one pass of x_K over the N − P
-        other vertices); x_K of the P proxy vertices and one sparse product carry the dense mesh."""
-        full = super().observe(state)
-        if not len(self._carried):
-            return full
+        values). One pass of x_K over the N vertices per member (blend + skin; with several threads each evaluates
+        a contiguous part of the vertices, the rows of the same evaluation) and one sparse product."""
+        self._check(state)
+        positions = getattr(self, "_positions", None)  # the state in the region's order, however it is kept
+        x = positions(state) if positions is not None else np.concatenate([ch.x.numpy() for ch in state.chunks])
         traj = state.bake.trajectory if state.bake is not None else state.trajectory
         t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
-        if self._proxy_view[0] is not traj:
-            self._proxy_view = (traj, restrict_trajectory(traj, self.proxy_vertices))
-        view = self._proxy_view[1]
-        p, region, carried = len(self.proxy_vertices), self.proxy_vertices, self._carried
+        region, carried = self.proxy_vertices, self._carried
+        p = len(region)
+        out = []
         for i in range(0, len(t), 32):
-            d = full[i:i + 32, region] - scan_trajectory(view, t[i:i + 32], 0)[0]  # x_proxy − x_K,proxy
-            b = len(d)
-            full[i:i + 32, carried] += (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3) \
-                .transpose(1, 0, 2)
-        return full
+            xk = self._dense_kinematic(traj, t[i:i + 32])  # x_K of every vertex, (b, N, 3)
+            xp = x[i:i + 32].astype(np.float64)
+            if len(carried):
+                d = xp - xk[:, region]
+                b = len(d)
+                xk[:, carried] += (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3) \
+                    .transpose(1, 0, 2)
+            xk[:, region] = xp
+            out.append(xk)
+        return out[0] if len(out) == 1 else np.concatenate(out)
+
+    def _dense_kinematic(self, trajectory, times: np.ndarray) -> np.ndarray:
+        """x_K of every vertex at ``times`` (b,) [s] → (b, N, 3) float64, split over the threads by vertices."""
+        workers = getattr(self, "_workers", None)
+        if workers is None or self.threads < 2:
+            return np.array(scan_trajectory(trajectory, times, 0)[0])
+        if self._dense_views[0] is not trajectory:
+            parts = np.array_split(np.arange(self.model.num_vertices), self.threads)
+            self._dense_views = (trajectory, [(q, restrict_trajectory(trajectory, q)) for q in parts])
+        out = np.empty((len(times), self.model.num_vertices, 3))
+
+        def task(q, view):
+            def run():
+                out[:, q[0]:q[-1] + 1] = scan_trajectory(view, times, 0)[0]
+            return run
+
+        workers.run([task(q, view) for q, view in self._dense_views[1]])
+        return out
 
     def simulated_kinematic(self, trajectory, times):
         """``(rows, x)``: the dense vertices whose state differs from x_K (the proxy's and the carried ones) (S,)

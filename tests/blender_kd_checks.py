@@ -174,6 +174,32 @@ def main(cfg: dict) -> dict:
         res["reopened_enabled"] = bool(obj.kdfaces.enabled)
         bpy.context.view_layer.objects.active = obj
         ref = obj.data.shape_keys.reference_key
+    # a keyed object rotation (a head turn about Blender's z, the toolkit's yaw) on a copy without shape animation
+    mover = obj.copy()
+    mover.data = obj.data.copy()
+    mover.name = "mover"
+    scene.collection.objects.link(mover)
+    mover.animation_data_clear()
+    if mover.data.shape_keys.animation_data is not None:
+        mover.data.shape_keys.animation_data_clear()
+    for k in list(mover.data.shape_keys.key_blocks):
+        if k.name == "KD":
+            mover.shape_key_remove(k)
+        else:
+            k.value = 0.0
+    mover.kdfaces.enabled = False
+    mover.rotation_mode = "XYZ"
+    for f, z in ((f0, 0.0), (f0 + 20, 0.6), (f0 + 40, 0.0)):
+        mover.rotation_euler = (0.0, 0.0, z)
+        mover.keyframe_insert("rotation_euler", index=2, frame=f)
+    bpy.context.view_layer.objects.active = mover
+    mover.kdfaces.window_mode, mover.kdfaces.window_s = "seconds", float(cfg["window_s"])
+    res["mover_error"] = _try_op(bpy.ops.kdfaces.enable_kd)
+    scene.frame_set(f0 + 30)
+    arrays["mover_30"] = _evaluated(bpy, np, mover)
+    fc = next(c for c in mover.animation_data.action.fcurves if c.data_path == "rotation_euler")
+    arrays["mover_rot_z"] = np.array([fc.evaluate(float(f)) for f in range(f0, f1 + 1)])
+    mover.kdfaces.enabled = False
     bad = {}
     bpy.ops.mesh.primitive_cube_add()
     cube = bpy.context.active_object

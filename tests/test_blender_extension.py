@@ -172,6 +172,50 @@ def test_a_saved_file_reopened_recomputes_the_frame(blender_run):
     assert np.array_equal(arrays["reopened_37"], arrays["visit_0"])
 
 
+def test_a_keyed_object_rotation_is_head_motion(blender_run):
+    """An object turned by its own keys (0 → 0.6 rad → 0 about Blender's z) and no shape animation: its KD state
+    at frame start + 30 equals simulate_kd of the rig on one "head" joint yawed by the same angles, brought back
+    into the mesh's own axes (Rᵀ·x)."""
+    from kdfaces import (
+        FaceAnimation,
+        FaceModel,
+        FaceSystem,
+        JointDrive,
+        KeyframeCurve,
+        KinematicTrajectory,
+        ShapeTrack,
+        SkeletonAnimation,
+        simulate_kd,
+    )
+    from kdfaces.rig import BlendshapeRig, Skeleton
+    from kdfaces.rig.parts import rigid_pieces
+
+    res, arrays, _, _ = blender_run
+    assert res["mover_error"] == ""
+    base = blender_rig(arrays)
+    n = base.num_vertices
+    skel = Skeleton(names=("head",), positions=np.zeros((1, 3)), parents=np.array([-1]), weights=np.ones((n, 1)))
+    rig = BlendshapeRig.create(base.neutral, base.deltas, base.faces, base.shape_names, skeleton=skel, name="mover")
+    yaw = arrays["mover_rot_z"]
+    times = np.arange(len(yaw)) / 25.0
+    zero = KeyframeCurve.create(times, np.zeros((len(times), rig.num_shapes)))
+    drive = JointDrive(KeyframeCurve.create(times, np.stack([yaw, 0 * yaw, 0 * yaw], axis=1)), shares={"head": 1.0})
+    anim = FaceAnimation(tracks=(ShapeTrack(tuple(rig.shape_names), zero),),
+                         skeleton=SkeletonAnimation(drives=(drive,), root=KeyframeCurve.create(times, np.zeros((len(
+                             times), 3)))), start_s=0.0, end_s=float(times[-1]), fps=25.0)
+    traj = KinematicTrajectory(rig, anim)
+    system = FaceSystem(FaceModel.from_rig(rig, rigid=rigid_pieces(rig)))
+    t = np.array([30 / 25.0])
+    x = simulate_kd(system, traj, t, WINDOW_S)[0]
+    system.close()
+    a = yaw[30]
+    R = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    local = x @ R  # Rᵀ·x per vertex: the mesh's own axes
+    got = to_kd(arrays["mover_30"])
+    assert np.abs(got - local).max() <= TOL_M
+    assert np.abs(x - traj.positions(t)[0]).max() > 20 * TOL_M  # the turn's secondary motion is visible (~0.1 mm)
+
+
 @pytest.mark.parametrize("case, words", [
     ("no_shape_keys", "has no shape keys"),
     ("armature_without_head", "has no head bone"),

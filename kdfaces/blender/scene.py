@@ -17,10 +17,14 @@ Conventions:
   action) evaluated at every frame of the range, or its constant ``value`` (0 when muted), into a catmull-rom
   :class:`~kdfaces.motion.KeyframeCurve` through those frames: at every frame it is exactly Blender's weight, and
   the KD steps (one per frame, h = 1/fps) read x_K only at frames.
-- **Head motion.** The KD is computed in the object's local space: the object's own transform moves the result
-  rigidly. An armature (``obj.find_armature()``) must have a head bone (:func:`kdfaces.rig.skeleton.joint_role`);
-  one without is a :class:`~kdfaces.errors.KDInputError`. (Reading the armature's head-chain pose animation into
-  joint drives is not done yet: the face's secondary motion comes from its shape-key animation.)
+- **Head motion.** An object whose own transform is keyed (location, Euler or quaternion rotation; scale 1) moves
+  the face: the rig gets one joint "head" at the object's origin skinning every vertex, driven by the object's
+  rotation as (yaw, pitch, roll) (R = R_y·R_x·R_z, :func:`kdfaces.rig.skeleton.joint_transforms`) and its location
+  as the root translation, so the KD feels the head turn; x_KD − x_K is turned back into the mesh's own axes for
+  the KD key. Parents and constraints are not read. An object that is not keyed is simulated in its local space.
+  An armature (``obj.find_armature()``) must have a head bone (:func:`kdfaces.rig.skeleton.joint_role`); one
+  without is a :class:`~kdfaces.errors.KDInputError`. (Reading an armature's head-chain pose animation into joint
+  drives is not done yet.)
 
 The API the panel, the frame handler, IKD and bake build on:
 
@@ -204,6 +208,82 @@ def _action_fcurves(id_data):
     return {fc.data_path: fc for fc in curves if fc.array_index == 0}
 
 
+_TRANSFORM_PATHS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",
+                    "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale")
+
+
+def _transform_fcurves(obj) -> dict:
+    """{(data_path, index): fcurve} of the object's own keyed transform (location, rotation, scale)."""
+    ad = getattr(obj, "animation_data", None)
+    if ad is None or ad.action is None:
+        return {}
+    action, slot = ad.action, getattr(ad, "action_slot", None)
+    curves = None
+    layers = getattr(action, "layers", None)
+    if layers and slot is not None:
+        for layer in layers:
+            for strip in layer.strips:
+                bag = strip.channelbag(slot) if hasattr(strip, "channelbag") else None
+                if bag is not None:
+                    curves = list(bag.fcurves)
+    if curves is None:
+        curves = list(getattr(action, "fcurves", ()))
+    return {(fc.data_path, fc.array_index): fc for fc in curves
+            if fc.data_path in _TRANSFORM_PATHS and not fc.mute and len(fc.keyframe_points)}
+
+
+#: (P) Blender axes → kdfaces axes: (x, y, z) ↦ (x, z, −y), as a matrix (see :func:`to_kd`).
+_P = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def _object_motion(obj, scene, frames: np.ndarray):
+    """The object's own keyed rigid motion at ``frames`` in kdfaces axes: (yaw, pitch, roll) (F, 3) [rad] with
+    R = R_y(yaw)·R_x(pitch)·R_z(roll) (:func:`kdfaces.rig.skeleton.joint_transforms`' order) and the translation
+    (F, 3) [m]; None when the object's transform is not keyed. Parents and constraints are not read."""
+    from mathutils import Euler, Quaternion
+
+    curves = _transform_fcurves(obj)
+    if not curves:
+        return None
+    if any(path in ("scale", "delta_scale") for path, _ in curves) or any(abs(v - 1.0) > 1e-9 for v in obj.scale):
+        raise KDInputError(f"object {obj.name!r}: its transform is keyed and its scale is not 1; expected scale 1 "
+                           "(apply the scale: Object › Apply › Scale)")
+    if any(path.startswith("delta_") or path == "rotation_axis_angle" for path, _ in curves) or \
+            obj.rotation_mode == "AXIS_ANGLE":
+        raise KDInputError(f"object {obj.name!r}: keyed delta transforms or axis-angle rotation; expected keyed "
+                           "location and Euler or quaternion rotation")
+
+    def channel(path, n, current):
+        out = np.empty((len(frames), n))
+        for i in range(n):
+            fc = curves.get((path, i))
+            out[:, i] = [fc.evaluate(float(f)) for f in frames] if fc is not None else current[i]
+        return out
+
+    loc = channel("location", 3, obj.location)
+    if obj.rotation_mode == "QUATERNION":
+        q = channel("rotation_quaternion", 4, obj.rotation_quaternion)
+        rot = np.array([np.array(Quaternion(v).normalized().to_matrix()) for v in q])
+    else:
+        e = channel("rotation_euler", 3, obj.rotation_euler)
+        rot = np.array([np.array(Euler(v, obj.rotation_mode).to_matrix()) for v in e])
+    R = _P @ rot @ _P.T  # the same rotation in kdfaces axes
+    pitch = np.arcsin(np.clip(-R[:, 1, 2], -1.0, 1.0))
+    yaw = np.arctan2(R[:, 0, 2], R[:, 2, 2])
+    roll = np.arctan2(R[:, 1, 0], R[:, 1, 1])
+    angles = np.unwrap(np.stack([yaw, pitch, roll], axis=1), axis=0)
+    return angles, to_kd(loc, scene_unit_m(scene))
+
+
+def _motion_bytes(obj) -> bytes:
+    curves = _transform_fcurves(obj)
+    if not curves:
+        return b"static"
+    head = f"{obj.rotation_mode}|{tuple(obj.location)}|{tuple(obj.rotation_euler)}|" \
+           f"{tuple(obj.rotation_quaternion)}|{tuple(obj.scale)}|".encode()
+    return head + b"".join(f"{k}".encode() + _fcurve_bytes(fc) for k, fc in sorted(curves.items()))
+
+
 def _fcurve_bytes(fc) -> bytes:
     n = len(fc.keyframe_points)
     buf = np.empty(n * 6, dtype=np.float32)
@@ -296,6 +376,7 @@ def _rig_hash(obj, scene, ref, shapes) -> tuple[bytes, list[np.ndarray]]:
     n = len(mesh.vertices)
     h = hashlib.blake2b(digest_size=16)
     h.update(f"{n}|{len(mesh.polygons)}|{len(mesh.loops)}|{scene_unit_m(scene)!r}".encode())
+    h.update(b"moves" if _transform_fcurves(obj) else b"local")  # a keyed transform gives the rig a head joint
     blocks = {ref.name: _co(ref, n)}
     h.update(blocks[ref.name].tobytes())
     for kb in shapes:
@@ -322,6 +403,7 @@ def _anim_hash(obj, scene, shapes) -> bytes:
         h.update(f"|{kb.name}|{kb.mute}|{'keyed' if keyed else kb.value!r}|".encode())
         if fc is not None:
             h.update(_fcurve_bytes(fc))
+    h.update(_motion_bytes(obj))
     return h.digest()
 
 
@@ -337,12 +419,18 @@ def _build_rig(obj, scene, ref, shapes, blocks):
         d = blocks[kb.name].astype(np.float64) - blocks[rel].astype(np.float64)
         deltas[k] = to_kd(d, unit)
     tri, counts, corners = _topology(mesh)
+    skeleton = None
+    if _transform_fcurves(obj):  # the object's keyed transform moves the whole mesh: one "head" joint at its origin
+        from kdfaces.rig import Skeleton
+
+        skeleton = Skeleton(names=("head",), positions=np.zeros((1, 3)), parents=np.array([-1]),
+                            weights=np.ones((len(basis), 1)))
     return BlendshapeRig.create(to_kd(basis, unit), deltas, tri, [kb.name for kb in shapes], name=obj.name,
-                                polygons=(counts, corners))
+                                polygons=(counts, corners), skeleton=skeleton)
 
 
 def _build_animation(obj, scene, shapes):
-    from kdfaces.motion import FaceAnimation, KeyframeCurve, ShapeTrack
+    from kdfaces.motion import FaceAnimation, JointDrive, KeyframeCurve, ShapeTrack, SkeletonAnimation
 
     frames = _frames(scene)
     fps = scene_fps(scene)
@@ -358,8 +446,16 @@ def _build_animation(obj, scene, shapes):
         else:
             w[:, k] = [fc.evaluate(float(f)) for f in frames]  # one call per frame and shape, not per vertex
     curve = KeyframeCurve.create(times, w, interpolation="catmull-rom", where=f"object {obj.name!r} shape keys")
-    return FaceAnimation(tracks=(ShapeTrack(tuple(kb.name for kb in shapes), curve),), start_s=0.0,
-                         end_s=float(times[-1]), fps=fps, name=obj.name)
+    skeleton = SkeletonAnimation()
+    motion = _object_motion(obj, scene, frames)
+    if motion is not None:  # the object's keyed rotation and location drive the head joint (_build_rig)
+        angles, loc = motion
+        where = f"object {obj.name!r} transform"
+        skeleton = SkeletonAnimation(
+            drives=(JointDrive(KeyframeCurve.create(times, angles, where=where), shares={"head": 1.0}),),
+            root=KeyframeCurve.create(times, loc, where=where))
+    return FaceAnimation(tracks=(ShapeTrack(tuple(kb.name for kb in shapes), curve),), skeleton=skeleton,
+                         start_s=0.0, end_s=float(times[-1]), fps=fps, name=obj.name)
 
 
 def _check_armature(obj) -> None:
@@ -550,7 +646,15 @@ def apply_kd(obj, scene, frame: float | None = None) -> KDFrame:
     n = len(obj.data.vertices)
     e = _ENTRIES.get(_entry_id(obj))
     basis = e.basis_co if e is not None and e.basis_co is not None else _co(ref, n)  # as hashed this generation
-    offset = from_kd(state.x_kd - state.x_k, scene_unit_m(scene)).astype(np.float32)
+    d = state.x_kd - state.x_k
+    rig = e.rig if e is not None else None
+    if rig is not None and rig.skeleton is not None:  # the object moves: x_KD − x_K is in its parent's axes
+        from kdfaces.rig.skeleton import joint_transforms
+
+        t = np.array([state.time_s])
+        G = joint_transforms(rig.skeleton, e.animation.skeleton.joint_angles(rig.skeleton, t, 2))[0]
+        d = d @ G[0, 0, :3, :3]  # Rᵀ·d for each row: the mesh's own axes
+    offset = from_kd(d, scene_unit_m(scene)).astype(np.float32)
     kb.relative_key = ref
     kb.data.foreach_set("co", (basis + offset).reshape(-1))
     if kb.value != 1.0:

@@ -214,12 +214,13 @@ bad["plain_untouched"] = plain.data.shape_keys is None and "kd_ikd" not in plain
 bpy.context.view_layer.objects.active = ob
 bpy.data.objects.remove(emp)
 sc.timeline_markers.clear()
+kept = ikd.object_correction(ob).values.copy()
 try:
     bpy.ops.kdfaces.solve_ikd()
     bad["none"] = "no error"
 except RuntimeError as e:
     bad["none"] = str(e)
-bad["none_kept_correction"] = np.array_equal(ikd.object_correction(ob).values, rc.correction.values)
+bad["none_kept_correction"] = np.array_equal(ikd.object_correction(ob).values, kept)
 R["bad"] = bad
 bpy.data.objects.remove(plain)
 bpy.data.scenes.remove(s2)

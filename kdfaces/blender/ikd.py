@@ -271,9 +271,26 @@ def store_correction(obj, correction, *, key: str, report: dict | None = None) -
     for s in correction.slots:
         b = dataclasses.asdict(s.basis)
         slots.append(json.dumps({"time_s": s.time_s, "kind": s.kind, "basis": type(s.basis).__name__, **b}))
-    obj[CORRECTION_PROP] = {"slots": slots, "shape": [int(v) for v in correction.state_shape],
-                            "values": np.ascontiguousarray(correction.values, dtype=np.float64).ravel(),
-                            "key": str(key), "report": json.dumps(report or {})}
+    values = np.ascontiguousarray(correction.values, dtype=np.float64).ravel()
+    token = hashlib.blake2b(values.tobytes() + "|".join(slots).encode(), digest_size=16).hexdigest()
+    obj[CORRECTION_PROP] = {"slots": slots, "shape": [int(v) for v in correction.state_shape], "values": values,
+                            "key": str(key), "report": json.dumps(report or {}), "token": token}
+
+
+#: Rebuilt corrections and corrected trajectories by the stored content's token (and the base trajectory), so a
+#: frame change reuses one :class:`~kdfaces.ikd.corrections.CorrectedTrajectory` (one ``version``: the KD system
+#: keeps its trajectory bake) instead of rebuilding it from the ID property. Bounded; a token names content, so an
+#: entry is never stale (undo restores an older token, which rebuilds or finds its own).
+_REBUILT: dict = {}
+_REBUILT_MAX = 8
+
+
+def _remember(key, value):
+    _REBUILT.pop(key, None)
+    _REBUILT[key] = value
+    while len(_REBUILT) > _REBUILT_MAX:
+        _REBUILT.pop(next(iter(_REBUILT)))
+    return value
 
 
 def object_correction(obj):
@@ -285,6 +302,9 @@ def object_correction(obj):
     data = obj.get(CORRECTION_PROP)
     if data is None:
         return None
+    token = data.get("token")
+    if token is not None and ("correction", token) in _REBUILT:
+        return _REBUILT[("correction", token)]
     slots = []
     for s in data["slots"]:
         d = json.loads(s)
@@ -293,13 +313,13 @@ def object_correction(obj):
         slots.append(Slot(float(t), kind, cls(**d)))
     shape = tuple(int(v) for v in data["shape"])
     corr = Correction(slots, shape)
-    values = np.asarray(data["values"], dtype=np.float64)
+    values = np.array(data["values"], dtype=np.float64)  # a copy: asarray views Blender's buffer (freed on store)
     if values.size != corr.values.size:
         raise KDInputError(f"{obj.name!r}: {CORRECTION_PROP}: {values.size} values for {len(slots)} slots of shape "
                            f"{shape}; solve IKD again")
     corr.values = values.reshape(corr.values.shape)
     corr.update()
-    return corr
+    return corr if token is None else _remember(("correction", token), corr)
 
 
 def correction_report(obj) -> dict:
@@ -335,7 +355,11 @@ def corrected_trajectory(obj, trajectory):
     corr = object_correction(obj)
     if corr is None or tuple(corr.state_shape) != tuple(trajectory.state_shape):
         return trajectory
-    return CorrectedTrajectory(trajectory, corr)
+    key = ("trajectory", obj[CORRECTION_PROP].get("token"), id(trajectory))
+    hit = _REBUILT.get(key)
+    if hit is not None and hit.base is trajectory and hit.correction is corr:
+        return hit
+    return _remember(key, CorrectedTrajectory(trajectory, corr))
 
 
 # --- the solve ----------------------------------------------------------------------------------------------------

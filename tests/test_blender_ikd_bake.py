@@ -111,6 +111,31 @@ R["expected_offset_m"] = ks.to_kd(np.linalg.solve(Rw, d_world), 1.0).tolist()
 R["tables"] = ikd.constraint_tables(ob, sc)
 
 
+class Layout:
+    """Records what a panel draws (a headless Blender draws no panel)."""
+
+    def __init__(self, lines):
+        self.lines = lines
+
+    def box(self):
+        return self
+
+    def row(self, **kw):
+        return self
+
+    def label(self, text="", icon="NONE"):
+        self.lines.append(text)
+
+    def operator(self, idname, **kw):
+        self.lines.append(idname)
+        return self
+
+
+R["panel_classes"] = [c.__name__ for c in ikd.CLASSES + bake.CLASSES if issubclass(c, bpy.types.Panel)]
+R["panel_before"] = []
+ikd.draw_constraints(Layout(R["panel_before"]), ob, bpy.context)
+
+
 def keys_snapshot():
     fcs = me.shape_keys.animation_data.action.fcurves
     return sorted((fc.data_path, tuple(tuple(k.co) for k in fc.keyframe_points)) for fc in fcs)
@@ -148,6 +173,8 @@ R["operator"] = list(bpy.ops.kdfaces.solve_ikd())
 R["solve_s"] = time.perf_counter() - t
 check_met("solve")
 R["keys_untouched"] = keys_snapshot() == before
+R["panel_after"] = []
+ikd.draw_constraints(Layout(R["panel_after"]), ob, bpy.context)
 R["key_names"] = [kb.name for kb in me.shape_keys.key_blocks]
 emp.location = emp.location + Vector((0.003, 0.0, 0.0))  # move the Empty 3 mm, solve again
 bpy.context.view_layer.update()
@@ -334,6 +361,16 @@ def test_solve_ikd_meets_the_constraints_in_blender(sessions):
     # the correction lives in an ID property: keys, and the shape keys but the live KD key, are untouched
     assert a["keys_untouched"]
     assert "KD" in a["key_names"] and len(a["key_names"]) == 1 + 52 + 1
+
+
+def test_the_panel_lists_the_constraints(sessions):
+    _, a, _ = sessions
+    assert len(a["panel_classes"]) == 4  # IKD and Bake sub-panels under both KD panels
+    before, after = "\n".join(a["panel_before"]), "\n".join(a["panel_after"])
+    assert "lip_target" in before and "point @ frame 16" in before and "pose @ frame 26" in before
+    assert "kdfaces.solve_ikd" in before and "correction:" not in before
+    assert "correction: converged" in after and "stale" not in after
+    assert " mm" in after  # each constraint's error after the solve
 
 
 def test_moving_the_empty_and_solving_again(sessions):

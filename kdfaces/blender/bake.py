@@ -279,7 +279,31 @@ if bpy is not None:
             self.report({"INFO"}, f"wrote {written.name} and {written.stem}{RIG_SUFFIX}")
             return {"FINISHED"}
 
-    CLASSES = (KDFACES_OT_bake, KDFACES_OT_export_shot)
+    def draw_bake(layout, context) -> None:
+        """The Bake panel: bake to PC2 (Mesh Cache) or USD, and Export shot file."""
+        ob = context.active_object
+        if ob is None or ob.type != "MESH":
+            layout.label(text="Select a mesh with shape keys", icon="INFO")
+            return
+        row = layout.row(align=True)
+        row.operator("kdfaces.bake", text="Bake PC2", icon="FILE_CACHE").kind = "pc2"
+        row.operator("kdfaces.bake", text="Bake USD", icon="EXPORT").kind = "usd"
+        layout.operator("kdfaces.export_shot", icon="FILE_TEXT")
+        md = ob.modifiers.get("KD cache")
+        if md is not None and md.type == "MESH_CACHE":
+            layout.label(text=f"cache: {Path(md.filepath).name}", icon="MOD_MESHDEFORM")
+
+    def _bake_panel(parent: str, space: str, region: str, **extra):
+        name = f"KDFACES_PT_bake_{parent.rsplit('_', 1)[-1]}"
+        return type(name, (bpy.types.Panel,),
+                    {"bl_label": "Bake and hand-off", "bl_idname": name, "bl_parent_id": parent,
+                     "bl_space_type": space, "bl_region_type": region, "bl_options": {"DEFAULT_CLOSED"},
+                     "__doc__": "Bake KD/IKD to a point cache, export the shot file",
+                     "draw": lambda self, context: draw_bake(self.layout, context), **extra})
+
+    CLASSES = (KDFACES_OT_bake, KDFACES_OT_export_shot,
+               _bake_panel("KDFACES_PT_sidebar", "VIEW_3D", "UI", bl_category="KD"),
+               _bake_panel("KDFACES_PT_object", "PROPERTIES", "WINDOW", bl_context="object"))
 
 
 def _one_line(e: BaseException) -> str:

@@ -511,4 +511,21 @@ if bpy is not None:
             self.report({"INFO"}, f"{obj.name}: IKD correction removed")
             return {"FINISHED"}
 
-    CLASSES = (KDFACES_OT_solve_ikd, KDFACES_OT_clear_ikd)
+    def _ikd_panel(parent: str, space: str, region: str, **extra):
+        """The IKD sub-panel under the KD panel ``parent`` (the sidebar's or the Object properties')."""
+
+        def draw(self, context):
+            obj = _active_mesh(context)
+            if obj is None:
+                self.layout.label(text="Select a mesh with shape keys", icon="INFO")
+                return
+            draw_constraints(self.layout, obj, context)
+
+        return type(f"KDFACES_PT_ikd_{parent.rsplit('_', 1)[-1]}", (bpy.types.Panel,),
+                    {"bl_label": "IKD", "bl_idname": f"KDFACES_PT_ikd_{parent.rsplit('_', 1)[-1]}",
+                     "bl_parent_id": parent, "bl_space_type": space, "bl_region_type": region,
+                     "__doc__": "IKD constraints of the active mesh and Solve IKD", "draw": draw, **extra})
+
+    CLASSES = (KDFACES_OT_solve_ikd, KDFACES_OT_clear_ikd,
+               _ikd_panel("KDFACES_PT_sidebar", "VIEW_3D", "UI", bl_category="KD"),
+               _ikd_panel("KDFACES_PT_object", "PROPERTIES", "WINDOW", bl_context="object"))

@@ -239,6 +239,16 @@ for name in ("plain",):
         bad[name] = str(e)
 bad["plain_untouched"] = plain.data.shape_keys is None and "kd_ikd" not in plain.keys()
 bpy.context.view_layer.objects.active = ob
+ob.keyframe_insert("rotation_euler", frame=1)  # a keyed transform is head motion: not in a shot file yet
+mods = [m.name for m in ob.modifiers]
+try:
+    bpy.ops.kdfaces.bake(filepath=str(out / "keyed.pc2"), kind="pc2")
+    bad["keyed"] = "no error"
+except RuntimeError as e:
+    bad["keyed"] = str(e)
+bad["keyed_untouched"] = [m.name for m in ob.modifiers] == mods and not (out / "keyed.pc2").exists()
+ob.animation_data_clear()
+bpy.context.view_layer.objects.active = ob
 bpy.data.objects.remove(emp)
 sc.timeline_markers.clear()
 kept = ikd.object_correction(ob).values.copy()
@@ -426,6 +436,7 @@ def test_bad_input_one_message_scene_unchanged(sessions):
     bad = a["bad"]
     assert "no shape keys" in bad["plain"] and bad["plain"].count("\n") <= 1, bad
     assert bad["plain_untouched"]
+    assert "transform is keyed" in bad["keyed"] and bad["keyed"].count("\n") <= 1 and bad["keyed_untouched"], bad
     assert "no IKD constraints" in bad["none"] and bad["none_kept_correction"], bad
 
 

@@ -197,7 +197,13 @@ def object_shot_table(obj, scene, constraints, *, rig_source: str = "rig.npz") -
     :func:`kdfaces.blender.ikd.constraint_tables`)."""
     from .scene import object_animation
 
-    return shot_table(name=shot_name(obj.name), rig_source=rig_source, animation=object_animation(obj, scene),
+    anim = object_animation(obj, scene)
+    sk = anim.skeleton
+    if sk.root is not None or sk.drives:
+        raise KDInputError(f"object {obj.name!r}: its own transform is keyed (head motion), which a shot file cannot "
+                           "say yet (no root translation, no object-origin joint); IKD, bakes and Export shot file "
+                           "need an object whose transform is not keyed (key a parent Empty instead)")
+    return shot_table(name=shot_name(obj.name), rig_source=rig_source, animation=anim,
                       dynamics=object_dynamics(obj, scene), constraints=list(constraints))
 
 

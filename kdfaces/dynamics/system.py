@@ -301,11 +301,13 @@ class FaceSystem:
             compute the same step (the tests hold them to float32 round-off of each other).
     """
 
-    def __new__(cls, model=None, *args, **kwargs):
-        if cls is FaceSystem and getattr(model, "embedding", None) is not None:  # a proxy model (#29)
-            from .proxy import ProxyFaceSystem
+    #: The class FaceSystem(model) builds for a model with a proxy (``model.embedding``, #29):
+    #: :class:`~kdfaces.dynamics.proxy.ProxyFaceSystem`, registered by its module (the package imports it).
+    proxy_system: type | None = None
 
-            cls = ProxyFaceSystem
+    def __new__(cls, model=None, *args, **kwargs):
+        if cls is FaceSystem and getattr(model, "embedding", None) is not None and FaceSystem.proxy_system:
+            cls = FaceSystem.proxy_system
         return super().__new__(cls)
 
     def __init__(self, model: FaceModel, *, device="cpu", threads: int = defaults.THREADS, check_every: int = 16,

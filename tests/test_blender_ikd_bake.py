@@ -102,6 +102,13 @@ emp.location = vw + Vector(d_world)
 emp["kd_frame"] = 16
 emp["kd_width_s"] = 0.2
 sc.timeline_markers.new("hold", frame=26)
+spare = bpy.data.objects.new("spare_target", None)  # keyed at frames 6 and 21: two constraints, listed, not solved
+sc.collection.objects.link(spare)
+spare.parent, spare.parent_type, spare.parent_vertices = ob, "VERTEX", (v, 0, 0)
+spare["kd_enabled"] = False
+for f, z in ((6, 0.001), (21, 0.002)):
+    spare.location = (0.0, 0.0, z)
+    spare.keyframe_insert("location", frame=f)
 sc.timeline_markers.new("hold:someone_else", frame=6)  # another object's marker: not this object's constraint
 bpy.context.view_layer.update()
 bpy.context.view_layer.objects.active = ob
@@ -347,8 +354,12 @@ def sessions(tmp_path_factory):
 
 def test_constraints_are_scene_objects(sessions):
     _, a, _ = sessions
-    ee, hold = a["tables"]
-    assert len(a["tables"]) == 2  # the other object's marker is not this object's constraint
+    ee, spare6, spare21, hold = a["tables"]  # Empties by name, then markers (not the other object's marker)
+    assert [spare6["time_s"], spare21["time_s"]] == [pytest.approx(5 / 25), pytest.approx(20 / 25)]
+    assert spare6["enabled"] is False and spare21["enabled"] is False and spare6["group"] == [a["vertex"]]
+    # keyed offsets (0, 0, z) in world axes, the object turned about z: (0, z, 0) in y-up rig axes
+    np.testing.assert_allclose(spare6["target"]["offset_m"], [0, 0.001, 0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(spare21["target"]["offset_m"], [0, 0.002, 0], rtol=0, atol=1e-9)
     assert ee["kind"] == "end_effector" and ee["group"] == [a["vertex"]] and ee["label"] == "lip_target"
     assert ee["time_s"] == pytest.approx(15 / 25, abs=1e-12) and ee["width_s"] == 0.2
     # the world offset d in the rotated object's axes, y up: float32 locations (~0.2 m) differ by ~3e-8 m

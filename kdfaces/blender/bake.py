@@ -215,16 +215,16 @@ if bpy is not None:
             except Exception as e:  # noqa: BLE001
                 self.report({"ERROR"}, _one_line(e))
                 return {"CANCELLED"}
+            from .scene import scene_unit_m
+
             self._obj_name, self._path_out = obj.name, path
             self._cancel = threading.Event()
             self._outcome = {}
+            kind, unit_m, shot = str(self.kind), scene_unit_m(scene), self._shot  # no Blender data on the worker
 
             def work():
                 try:
-                    from .scene import scene_unit_m
-
-                    self._outcome["ok"] = bake_shot(self._shot, path, kind=self.kind, cancel=self._cancel.is_set,
-                                                    unit_m=scene_unit_m(scene))
+                    self._outcome["ok"] = bake_shot(shot, path, kind=kind, cancel=self._cancel.is_set, unit_m=unit_m)
                 except BaseException as e:  # noqa: BLE001 - reported on Blender's thread
                     self._outcome["error"] = e
 

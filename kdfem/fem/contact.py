@@ -213,12 +213,21 @@ class SkinnedCollider(Collider):
         return joint_frames(jt, np.atleast_1d(np.asarray(times, dtype=np.float64)))
 
     def _blend(self, G, rest: bool):
-        """Σ_j w_ij G_j X_i (+ (1 − Σ_j w_ij) X_i with ``rest``) for joint transforms (or rates) G (T, J, 4, 4)."""
+        """Σ_j w_ij G_j X_i (+ (1 − Σ_j w_ij) X_i with ``rest``) for joint transforms (or rates) G (T, J, 4, 4); a
+        vertex without skin weight is X_i (or 0), unblended."""
         X, W = self.rest_vertices, self.weights
-        B = np.einsum("vj,tjab->tvab", W, G[:, :, :3, :])  # (T, V, 3, 4) blended transforms
-        out = np.einsum("tvab,vb->tva", B[..., :3], X) + B[..., 3]
+        mv = getattr(self, "_moving", None)
+        if mv is None:
+            mv = self._moving = np.flatnonzero(W.any(axis=1))
+        Xm, Wm = X[mv], W[mv]
+        B = np.einsum("vj,tjab->tvab", Wm, G[:, :, :3, :])  # (T, Vm, 3, 4) blended transforms
+        moved = np.einsum("tvab,vb->tva", B[..., :3], Xm) + B[..., 3]
         if rest:
-            out += (1.0 - W.sum(axis=1))[None, :, None] * X
+            moved += (1.0 - Wm.sum(axis=1))[None, :, None] * Xm
+            out = np.broadcast_to(X, (len(G), *X.shape)).copy()
+        else:
+            out = np.zeros((len(G), *X.shape))
+        out[:, mv] = moved
         return out
 
     def positions(self, times, trajectory=None) -> np.ndarray:
@@ -280,6 +289,7 @@ class _Piece:
     verts: np.ndarray
     rest: np.ndarray
     grid: DistanceGrid
+    static: bool = False  # a skinned piece whose vertices carry no skin weight: it stays at rest
 
 
 class DistanceGrid:
@@ -675,8 +685,10 @@ class ContactModel:
                 Fp = Fc[labels == lab]
                 used = np.unique(Fp)
                 loc = np.searchsorted(used, Fp)
+                W = getattr(c, "weights", None)
+                static = isinstance(c, SkinnedCollider) and not np.asarray(W)[used].any()
                 self._pieces.append(_Piece(collider=k, verts=used, rest=Vc[used],
-                                           grid=_cached_grid(Vc[used], loc, h, pad)))
+                                           grid=_cached_grid(Vc[used], loc, h, pad), static=bool(static)))
         self._spacing = min(spacings)
         self._sampler, self._sample_tri, self._sample_n, self._sample_w = _subdivision(
             Xo, self._obj_faces_local, self._spacing, weights=True)
@@ -730,6 +742,9 @@ class ContactModel:
             g = None if G is None else G[pc.collider]
             if g is not None and hasattr(self.colliders[pc.collider], "frames"):
                 out.append((g[:3, :3], g[:3, 3], 0.0))
+                continue
+            if pc.static:  # a piece without skin weight never moves (the torso of a body): its rest frame, δ = 0
+                out.append((np.eye(3), np.zeros(3), 0.0))
                 continue
             off = self._slices[pc.collider][0] - self.num_object
             Y = C[off + pc.verts]

@@ -27,6 +27,7 @@ CONCEPTS = {
     "attach_distance_m": "ATTACH_DISTANCE_M", "omega_max_radps": "OMEGA_MAX_RADPS", "v_max_mps": "V_MAX_MPS",
     "rayleigh_alpha": "RAYLEIGH_ALPHA", "rayleigh_beta": "RAYLEIGH_BETA", "falloff_m": "FALLOFF_M",
     "step_scale": "STEP_SCALE", "tolerance_mps": "TOLERANCE_MPS", "max_correction_m": "MAX_CORRECTION_M",
+    "frame_start": "FRAME_START",
 }
 
 #: (parameter, place) → (the value it must have, why it is another concept than the same name elsewhere)

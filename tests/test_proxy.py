@@ -141,7 +141,7 @@ def _accuracy(traj, dense, model, times):
 #: 99 % of the vertices, but not at the mouth corners and the chin, where the dense model's own 2-ring shape-matching
 #: clusters (a few mm across) resolve a deviation that changes by ~10 mm over a centimetre: measured there 0.7 ε
 #: interpolation (W) and 1.0 ε dynamics (the proxy's clusters are coarser), 1.3–1.5 ε in all
-#: (docs/dense_rigs.md). These bounds hold what is reached, with 15 % margin, so that a regression fails.
+#: (docs/dense-rigs.md). These bounds hold what is reached, with 15 % margin, so that a regression fails.
 P99_FRACTION, MAX_FRACTION = 0.5, 1.75
 
 

@@ -20,7 +20,7 @@ __all__ = ["FaceProxy", "build_proxy", "embedding_matrix", "shape_features", "pr
 AUTO_PROXY_VERTICES = 4_000
 #: Weight of the blend-shape displacements against the rest position in the edge lengths the decimation collapses
 #: shortest first (dimensionless; 0: geometry only). On the demo at 19k → 6k it lowers the 99th percentile of the
-#: proxy's error from 0.55 ε to 0.43 ε (docs/dense_rigs.md).
+#: proxy's error from 0.55 ε to 0.43 ε (docs/dense-rigs.md).
 DECIMATE_SHAPE_WEIGHT = 10.0
 #: A proxy needs at least this many vertices (a face of fewer cannot carry a face's dynamics).
 MIN_PROXY_VERTICES = 100

@@ -277,6 +277,7 @@ class ImplicitEuler:
         self.evaluations = 0  # evaluations of E and r
         self.contact_steps = 0  # member-steps taken on the contact path (ipctk)
         self.contact_factorizations = 0  # Newton matrices factored on the contact path
+        self.contact_rounds = 0  # continuation rounds of contact steps without an admissible first guess
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="kdfem-step") if self.threads > 1 else None
         self._workspaces: dict[tuple[int, int], _Workspace] = {}
         self.nodal = True  # precondition with the rest matrix rotated per node (else by the bone)
@@ -543,25 +544,33 @@ class ImplicitEuler:
                 return True
             return False
 
-        def verts(v):
-            return loc.vertices(xo_n + h * v[0, nodes], C1)
+        Cs = C1  # the colliders' pose the iterates are evaluated against (C1 but during a continuation round)
 
-        # a first guess reached from (x_n, C0) without crossing: the extrapolated one, else the last velocity, else
-        # the free nodes at rest (CCD of the straight path, the colliders moving too)
+        def verts(v):
+            return loc.vertices(xo_n + h * v[0, nodes], Cs)
+
+        # a first guess reached from (x_n, C0) without crossing and inverting no tet: the extrapolated one, else x_n
+        # carried rigidly onto the attached nodes' targets (keeps every det F of x_n), else the last velocity, else
+        # the free nodes at rest (CCD of the straight path, the colliders moving too). The line search only accepts
+        # iterates with every det F > 0, so an inverting first guess could never be left: at the door's lintel the
+        # extrapolated guess of the tip swinging back after the hit inverted a sliver, and every backtracked step
+        # still did ("line search with contact found no decrease" at det F < 0 for t → 0)
         v = None
-        for k in range(3):
+        att = self.model.attached
+        for k in range(4):
             cand = v1[sl].copy()  # attached nodes: exact in every guess
             if k == 1:
-                cand[:, fr] = vn[:, fr]
+                cand = rigid_carry_velocity(xn, xn[:, att] + h * v1[sl][:, att], att, h)
             elif k == 2:
+                cand[:, fr] = vn[:, fr]
+            elif k == 3:
                 cand[:, fr] = 0.0
+            if not self.workspace(1).min_det(xn + h * cand)[0] > 0:
+                continue
             widen(cand)
             if ipctk.compute_collision_free_stepsize(loc.mesh, loc.vertices(xo_n, C0), verts(cand)) >= 1.0:
                 v = cand
                 break
-        if v is None:
-            raise SimulationBlowUpError(f"{where}: a collider moves through the object within one step of "
-                                        f"{h:g} s (batch member {b}); use a smaller step_s")
 
         def energy(v, kappa):
             E, r, det, scale = self._potential(xn, vn, v, Rm, Awm, cwm)
@@ -583,69 +592,128 @@ class ImplicitEuler:
                 r[fi] += h * friction[1].gradient(friction[0], loc.mesh, U).reshape(-1, 3)[:n]
             return E, r, det[0], scale[0], col, V, gB
 
-        E, r, det, scale, col, V, gB = energy(v, 1.0)
-        if cm.kappa is not None:
-            kappa, kappa_max = float(cm.kappa), float(cm.kappa)
-        elif len(col):  # IPC §4.3: κ̃ balancing the incremental potential's gradient (position form: h·r)
-            g_e = np.zeros((loc.num_vertices, 3))
-            g_e[:n] = h * r[fi] - gB  # the incremental potential alone (r holds (1/h)·∇B at κ̃ = 1)
-            g_b = np.zeros((loc.num_vertices, 3))
-            g_b[:n] = gB
-            kappa, kappa_max = ipctk.initial_barrier_stiffness(cm.scene_size_m, cm.barrier.barrier, cm.dhat_m,
-                                                                cm.mean_mass_kg, g_e.ravel(), g_b.ravel())
-        else:
-            kappa, kappa_max = cm.kappa_min, cm.kappa_max
-        kappa_f = kappa
-        lag_friction()
-        E, r, det, scale, col, V, gB = energy(v, kappa)
-        # ipctk's κ̃ update compares *squared* distances (its compute_minimum_distance) with 10⁻⁹ × the scene size
-        prev_d2 = col.compute_minimum_distance(loc.mesh, V) if len(col) else np.inf
-        newton = _ContactNewton(self, b, xn, Rm)
-        it, size = 0, np.inf
-        while True:
-            it += 1
-            if it > self.max_iter:
-                raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
-                                            f"iterations (batch member {b}; last position update "
-                                            f"{h * size:.3g} m > tol_m {self.tol_m} m)")
-            d = newton.direction(v, r, col, V, kappa, loc, friction)
-            size = float(np.abs(d).max())
-            if not np.isfinite(d).all():
-                raise SimulationBlowUpError(f"{where}: non-finite Newton update with contact in iteration {it}")
-            vt = v.copy()
-            vt[0, fr] += d
-            if widen(vt):  # the Newton step leaves the cut: widen it and evaluate the current iterate on it
-                E, r, det, scale, col, V, gB = energy(v, kappa)
+        def continuation():
+            """No admissible first guess (a collider in the way of the whole object carried at the bone's speed:
+            the hat's tip meeting the lintel at 1.2 m/s moves 12 mm a step and hits it after 13 % of its carry,
+            while moving the attached nodes alone inverts the slivers at the attachment): reach the minimiser of
+            the same E_c by continuation in the attached nodes' targets and the colliders' poses, x_a(τ) =
+            x_a,n + τ·h·v_a, C(τ) = C0 + τ(C1 − C0), from τ = 0 (x_n itself, admissible) to τ = 1 (the step's
+            problem). Each round moves to a larger τ' by an admissible guess (det F > 0 and a collision-free path
+            from the round's start, CCD): the round's result carried rigidly onto the attached targets at τ',
+            else its free nodes kept and the attached ones moved, halving τ' − τ until one is; then minimises E_c
+            there. Only the last round's minimisation (τ = 1) is the step; the rounds before are its first guess."""
+            nonlocal Cs
+            va = v1[sl][:, att].copy()  # the attached nodes' exact velocities (their targets at τ = 1)
+            tau, vc, its = 0.0, np.zeros_like(v1[sl]), 0
+            for _ in range(64):
+                if tau >= 1.0:
+                    break
+                Cs0, xc = C0 + tau * (C1 - C0), xn + h * vc
+                step = 1.0 - tau
+                for _ in range(30):
+                    tau1 = 1.0 if step >= 1.0 - tau else tau + step
+                    Cs1 = C0 + tau1 * (C1 - C0)
+                    target = xn[:, att] + tau1 * h * va
+                    rigid = vc + rigid_carry_velocity(xc, target, att, h)
+                    moved = vc.copy()
+                    moved[:, att] = tau1 * va
+                    found = None
+                    for cand in (rigid, moved):
+                        if not self.workspace(1).min_det(xn + h * cand)[0] > 0:
+                            continue
+                        widen(cand)
+                        if ipctk.compute_collision_free_stepsize(loc.mesh, loc.vertices(xc[0, nodes], Cs0),
+                                                                 loc.vertices(xo_n + h * cand[0, nodes], Cs1)) >= 1:
+                            found = cand
+                            break
+                    if found is not None:
+                        break
+                    step *= 0.5
+                else:
+                    raise SimulationBlowUpError(f"{where}: a collider moves through the object within one step of "
+                                                f"{h:g} s (batch member {b}; no admissible continuation past "
+                                                f"τ = {tau:.3g}); use a smaller step_s")
+                Cs = Cs1
+                vc, it_r, kappa = minimise(found)
+                its += it_r
+                tau = tau1
+                self.contact_rounds += 1
+            else:
+                raise SimulationBlowUpError(f"{where}: the continuation of a step with contact did not reach its "
+                                            f"end in 64 rounds (batch member {b}, τ = {tau:.3g})")
+            return vc, its, kappa
+
+        def minimise(v):  # projected Newton on E_c from the admissible first guess v (class docstring)
+            nonlocal kappa_f
+            E, r, det, scale, col, V, gB = energy(v, 1.0)
+            if cm.kappa is not None:
+                kappa, kappa_max = float(cm.kappa), float(cm.kappa)
+            elif len(col):  # IPC §4.3: κ̃ balancing the incremental potential's gradient (position form: h·r)
+                g_e = np.zeros((loc.num_vertices, 3))
+                g_e[:n] = h * r[fi] - gB  # the incremental potential alone (r holds (1/h)·∇B at κ̃ = 1)
+                g_b = np.zeros((loc.num_vertices, 3))
+                g_b[:n] = gB
+                kappa, kappa_max = ipctk.initial_barrier_stiffness(cm.scene_size_m, cm.barrier.barrier, cm.dhat_m,
+                                                                    cm.mean_mass_kg, g_e.ravel(), g_b.ravel())
+            else:
+                kappa, kappa_max = cm.kappa_min, cm.kappa_max
+            kappa_f = kappa
+            lag_friction()
+            E, r, det, scale, col, V, gB = energy(v, kappa)
+            # ipctk's κ̃ update compares *squared* distances (its compute_minimum_distance) with 10⁻⁹ × the scene size
+            prev_d2 = col.compute_minimum_distance(loc.mesh, V) if len(col) else np.inf
+            newton = _ContactNewton(self, b, xn, Rm)
+            it, size = 0, np.inf
+            while True:
+                it += 1
+                if it > self.max_iter:
+                    raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
+                                                f"iterations (batch member {b}; last position update "
+                                                f"{h * size:.3g} m > tol_m {self.tol_m} m)")
                 d = newton.direction(v, r, col, V, kappa, loc, friction)
                 size = float(np.abs(d).max())
+                if not np.isfinite(d).all():
+                    raise SimulationBlowUpError(f"{where}: non-finite Newton update with contact in iteration {it}")
                 vt = v.copy()
                 vt[0, fr] += d
-                widen(vt)
-            # converged: the full Newton step (not the line search's fraction of it, which CCD may cut) moves no node
-            # by tol_m; it is taken when CCD allows it whole, else the search below bounds it as any other
-            t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
-            done = h * size < self.tol_m
-            slope = float((d * r).sum())
-            while True:
-                vt = v.copy()
-                vt[0, fr] += t * d
-                Et, rt, dt, st, colt, Vt, gBt = energy(vt, kappa)
-                if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < 0.1 * self.tol_m):
-                    break
-                t *= 0.5
-                if t < 1e-8:
-                    raise SimulationBlowUpError(f"{where}: line search with contact found no decrease (batch "
-                                                f"member {b})")
-            v, E, r, col, V, gB = vt, Et, rt, colt, Vt, gBt
-            if done:
-                break
-            if len(col) and cm.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
-                d2 = float(col.compute_minimum_distance(loc.mesh, V))
-                k2 = float(ipctk.update_barrier_stiffness(prev_d2, d2, kappa_max, kappa, cm.scene_size_m))
-                prev_d2 = d2
-                if k2 != kappa:
-                    kappa = k2
+                if widen(vt):  # the Newton step leaves the cut: widen it and evaluate the current iterate on it
                     E, r, det, scale, col, V, gB = energy(v, kappa)
+                    d = newton.direction(v, r, col, V, kappa, loc, friction)
+                    size = float(np.abs(d).max())
+                    vt = v.copy()
+                    vt[0, fr] += d
+                    widen(vt)
+                # converged: the full Newton step (not the line search's fraction of it, which CCD may cut) moves no
+                # node by tol_m; it is taken when CCD allows it whole, else the search below bounds it as any other
+                t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
+                done = h * size < self.tol_m
+                slope = float((d * r).sum())
+                while True:
+                    vt = v.copy()
+                    vt[0, fr] += t * d
+                    Et, rt, dt, st, colt, Vt, gBt = energy(vt, kappa)
+                    if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < 0.1 * self.tol_m):
+                        break
+                    t *= 0.5
+                    if t < 1e-8:
+                        raise SimulationBlowUpError(f"{where}: line search with contact found no decrease (batch "
+                                                    f"member {b})")
+                v, E, r, col, V, gB = vt, Et, rt, colt, Vt, gBt
+                if done:
+                    break
+                if len(col) and cm.kappa is None:  # IPC §4.3: stiffen while the gap keeps closing
+                    d2 = float(col.compute_minimum_distance(loc.mesh, V))
+                    k2 = float(ipctk.update_barrier_stiffness(prev_d2, d2, kappa_max, kappa, cm.scene_size_m))
+                    prev_d2 = d2
+                    if k2 != kappa:
+                        kappa = k2
+                        E, r, det, scale, col, V, gB = energy(v, kappa)
+            return v, it, kappa
+
+        if v is not None:
+            v, it, kappa = minimise(v)
+        else:
+            v, it, kappa = continuation()
         v1[b] = v[0]
         self.last_kappa = kappa
         self.last_local_faces = len(loc.mesh.faces) - len(cm._obj_faces_local)

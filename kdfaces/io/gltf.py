@@ -710,7 +710,75 @@ def gltf_vertex_map(rig: BlendshapeRig) -> np.ndarray:
     return _split_at_uv_seams(rig)[0]
 
 
-def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = None, sparse: bool = True) -> Path:
+def _quaternions(angles: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (x, y, z, w), glTF's order, of (yaw, pitch, roll) angles (..., 3) [rad]:
+    R = R_y(yaw)·R_x(pitch)·R_z(roll) (:func:`kdfaces.rig.skeleton.joint_transforms`)."""
+    half = 0.5 * np.asarray(angles, dtype=np.float64)
+    c, s = np.cos(half), np.sin(half)
+    qy = np.stack([0 * s[..., 0], s[..., 0], 0 * s[..., 0], c[..., 0]], axis=-1)
+    qx = np.stack([s[..., 1], 0 * s[..., 1], 0 * s[..., 1], c[..., 1]], axis=-1)
+    qz = np.stack([0 * s[..., 2], 0 * s[..., 2], s[..., 2], c[..., 2]], axis=-1)
+
+    def mul(a, b):  # Hamilton product of (x, y, z, w) quaternions
+        av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+        return np.concatenate([aw * bv + bw * av + np.cross(av, bv), aw * bw - (av * bv).sum(-1, keepdims=True)],
+                              axis=-1)
+
+    return mul(mul(qy, qx), qz)
+
+
+def _write_skin(g, b: _BinaryBuilder, rig: BlendshapeRig, src: np.ndarray, attributes, animation) -> None:
+    """The rig's skeleton as a glTF skin on node 0: a root joint ``body`` at the origin that carries each vertex's
+    weight not on the head chain (glTF weights sum to one; the body stays at rest), the chain's joints below it
+    (node translation = rest pivot − parent's pivot, identity rotation: the rest pose is the bind pose, inverse bind
+    matrices T(−p_j)), ``JOINTS_n``/``WEIGHTS_n`` sets of four (every joint in every set, zeros included), and,
+    with ``animation``, each joint's rotation (yaw, pitch, roll → quaternion) sampled at the weights' key times
+    as a LINEAR rotation channel. The root translation is not written."""
+    import pygltflib
+
+    sk = rig.skeleton
+    J = len(sk.names)
+    first = len(g.nodes)  # node of the body; joint j is node first + 1 + j
+    nodes = [first] + [first + 1 + j for j in range(J)]
+    g.nodes.append(pygltflib.Node(name="body", children=[first + 1 + j for j in range(J) if sk.parents[j] < 0]))
+    for j in range(J):
+        parent = sk.parents[j]
+        t = sk.positions[j] - (sk.positions[parent] if parent >= 0 else 0.0)
+        g.nodes.append(pygltflib.Node(name=sk.names[j], translation=[float(v) for v in t],
+                                      children=[first + 1 + k for k in range(J) if sk.parents[k] == j]))
+    pivots = np.vstack([np.zeros((1, 3)), sk.positions])
+    ibm = np.tile(np.eye(4), (J + 1, 1, 1))
+    ibm[:, :3, 3] = -pivots
+    ibm_acc = b.accessor(np.ascontiguousarray(ibm.transpose(0, 2, 1).reshape(-1, 16), dtype="<f4"), "MAT4")
+    g.skins.append(pygltflib.Skin(name=f"{rig.name}_skin", joints=nodes, skeleton=first, inverseBindMatrices=ibm_acc))
+    g.nodes[0].skin = len(g.skins) - 1
+    g.scenes[0].nodes.append(first)
+    w = np.concatenate([np.clip(1.0 - sk.weights.sum(axis=1), 0.0, None)[:, None], sk.weights], axis=1)[src]
+    sets = -(-(J + 1) // 4)
+    w = np.concatenate([w, np.zeros((len(w), 4 * sets - (J + 1)))], axis=1).astype("<f4")
+    idx = np.minimum(np.arange(4 * sets), J).astype("<u2")
+    for k in range(sets):
+        jv = b.view(np.ascontiguousarray(np.broadcast_to(idx[4 * k:4 * k + 4], (len(w), 4))), _ARRAY_BUFFER)
+        g.accessors.append(pygltflib.Accessor(bufferView=jv, componentType=5123, count=len(w), type="VEC4"))
+        setattr(attributes, f"JOINTS_{k}", len(g.accessors) - 1)
+        setattr(attributes, f"WEIGHTS_{k}", b.accessor(np.ascontiguousarray(w[:, 4 * k:4 * k + 4]), "VEC4",
+                                                       target=_ARRAY_BUFFER))
+    if animation is None or not animation.skeleton.drives:
+        return
+    times = animation.frame_times
+    q = _quaternions(animation.skeleton.joint_angles(sk, times, 0)[0])  # (T, J, 4)
+    a = g.animations[-1]
+    for j in range(J):
+        a.samplers.append(pygltflib.AnimationSampler(
+            input=a.samplers[0].input, output=b.accessor(np.ascontiguousarray(q[:, j], dtype="<f4"), "VEC4"),
+            interpolation="LINEAR"))
+        a.channels.append(pygltflib.AnimationChannel(
+            sampler=len(a.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=first + 1 + j,
+                                                                                 path="rotation")))
+
+
+def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = None, sparse: bool = True,
+              skin: bool = False) -> Path:
     """Write ``rig`` as a glTF 2.0 mesh with morph targets to ``.gltf`` (embedded buffer) or ``.glb``, atomically.
 
     Args:
@@ -720,7 +788,7 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
             accessor mapping them back, which :func:`load_gltf_rig` uses). In-betweens (an FBX rig's
             ``jawOpen@50``) are written as morph targets plus ``mesh.extras.kdfaces_inbetweens``
             (:data:`INBETWEENS_EXTRAS`), which :func:`load_gltf_rig` reads back; other tools see plain morph
-            targets. The skeleton is not written.
+            targets. The skeleton is written only with ``skin``.
         path: output file; the extension picks the container.
         animation: optional; its shape weights are sampled at its frame times and written as one LINEAR weights
             channel (head rotations are not written), frame k at time ``(FRAME_START + k) / fps`` [s] (scene frame
@@ -729,6 +797,9 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
             through the in-betweens, so any glTF player shows the motion); :func:`load_gltf` turns them back into
             channel weights.
         sparse: store morph targets that move few vertices as sparse accessors.
+        skin: also write the rig's skeleton as a skin (a root ``body`` joint, the head chain, ``JOINTS_n`` /
+            ``WEIGHTS_n``) and, with ``animation``, each joint's rotation channel (the root translation is not
+            written); :func:`load_gltf` reads the skin back as the same head chain.
     """
     import pygltflib
 
@@ -776,6 +847,8 @@ def save_gltf(rig: BlendshapeRig, path, *, animation: FaceAnimation | None = Non
         g.animations.append(pygltflib.Animation(
             name=animation.name, samplers=[sampler], channels=[pygltflib.AnimationChannel(sampler=0, target=target)],
             extras={_FPS_EXTRAS: fps, _FRAME_START_EXTRAS: FRAME_START, _START_EXTRAS: float(times[0])}))
+    if skin and rig.skeleton is not None:
+        _write_skin(g, b, rig, src, attributes, animation)
     blob = b.blob()
     if p.suffix == ".glb":
         g.buffers.append(pygltflib.Buffer(byteLength=len(blob)))

@@ -23,8 +23,19 @@ Conventions:
   as the root translation, so the KD feels the head turn; x_KD − x_K is turned back into the mesh's own axes for
   the KD key. Parents and constraints are not read. An object that is not keyed is simulated in its local space.
   An armature (``obj.find_armature()``) must have a head bone (:func:`kdfaces.rig.skeleton.joint_role`); one
-  without is a :class:`~kdfaces.errors.KDInputError`. (Reading an armature's head-chain pose animation into joint
-  drives is not done yet.)
+  without is a :class:`~kdfaces.errors.KDInputError`. With one, the armature moves the head instead (the object's
+  own keyed transform is then not read): its bones (names, parents, rest heads ``bone.head_local``, brought into
+  the mesh's space by ``mesh.matrix_world⁻¹ · armature.matrix_world`` and kdfaces axes) and the mesh's vertex-group
+  weights (normalised per vertex over the bones' groups, as the Armature modifier does) become the head chain
+  (:func:`kdfaces.rig.skeleton.head_chain_skeleton`: neck…, head, jaw; bones below the head skin with the head,
+  the rest of the weight stays at rest). Each chain bone's pose rotation (its ``rotation_quaternion`` or
+  ``rotation_euler`` fcurves in the armature's action, evaluated at every frame, else its current value), which
+  Blender applies in the bone's rest frame B, is the rotation B·R_pose·Bᵀ about the bone's rest head in armature
+  space (deform = parent deform · M_rest · M_pose · M_rest⁻¹), turned into kdfaces axes and (yaw, pitch, roll):
+  one :class:`~kdfaces.motion.JointDrive` per chain joint (share 1), catmull-rom through the frames. Not read:
+  bone location/scale keys, rotations of bones below the head or above the neck, constraints and drivers, the
+  armature object's own motion. Reading vertex groups needs one Python pass over the vertices' ``groups``
+  (Blender has no array path for them); it runs when the rig is rebuilt or hashed after an edit.
 
 The API the panel, the frame handler, IKD and bake build on:
 
@@ -212,11 +223,11 @@ _TRANSFORM_PATHS = ("location", "rotation_euler", "rotation_quaternion", "rotati
                     "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale")
 
 
-def _transform_fcurves(obj) -> dict:
-    """{(data_path, index): fcurve} of the object's own keyed transform (location, rotation, scale)."""
+def _fcurve_list(obj) -> list:
+    """Every fcurve of ``obj``'s action (legacy or slotted/layered actions)."""
     ad = getattr(obj, "animation_data", None)
     if ad is None or ad.action is None:
-        return {}
+        return []
     action, slot = ad.action, getattr(ad, "action_slot", None)
     curves = None
     layers = getattr(action, "layers", None)
@@ -228,7 +239,12 @@ def _transform_fcurves(obj) -> dict:
                     curves = list(bag.fcurves)
     if curves is None:
         curves = list(getattr(action, "fcurves", ()))
-    return {(fc.data_path, fc.array_index): fc for fc in curves
+    return curves
+
+
+def _transform_fcurves(obj) -> dict:
+    """{(data_path, index): fcurve} of the object's own keyed transform (location, rotation, scale)."""
+    return {(fc.data_path, fc.array_index): fc for fc in _fcurve_list(obj)
             if fc.data_path in _TRANSFORM_PATHS and not fc.mute and len(fc.keyframe_points)}
 
 
@@ -267,12 +283,155 @@ def _object_motion(obj, scene, frames: np.ndarray):
     else:
         e = channel("rotation_euler", 3, obj.rotation_euler)
         rot = np.array([np.array(Euler(v, obj.rotation_mode).to_matrix()) for v in e])
-    R = _P @ rot @ _P.T  # the same rotation in kdfaces axes
+    return _ypr(_P @ rot @ _P.T), to_kd(loc, scene_unit_m(scene))  # the same rotation in kdfaces axes
+
+
+def _ypr(R: np.ndarray) -> np.ndarray:
+    """(yaw, pitch, roll) (F, 3) [rad], unwrapped over the frames, of rotations R (F, 3, 3) in kdfaces axes with
+    R = R_y(yaw)·R_x(pitch)·R_z(roll)."""
     pitch = np.arcsin(np.clip(-R[:, 1, 2], -1.0, 1.0))
     yaw = np.arctan2(R[:, 0, 2], R[:, 2, 2])
     roll = np.arctan2(R[:, 1, 0], R[:, 1, 1])
-    angles = np.unwrap(np.stack([yaw, pitch, roll], axis=1), axis=0)
-    return angles, to_kd(loc, scene_unit_m(scene))
+    return np.unwrap(np.stack([yaw, pitch, roll], axis=1), axis=0)
+
+
+def _armature(obj):
+    """The armature deforming ``obj`` that has a head bone, or None (no armature; one without a head bone is an
+    error: :func:`_check_armature`)."""
+    arm = obj.find_armature() if hasattr(obj, "find_armature") else None
+    return arm
+
+
+def _chain_bones(names, parents) -> list:
+    """The armature bone (index) of each joint :func:`kdfaces.rig.skeleton.head_chain_skeleton` makes, in its
+    order (neck01…, head, jaw): None for a neck joint it adds."""
+    from kdfaces.rig.skeleton import joint_role
+
+    roles = [joint_role(n) for n in names]
+    heads = [j for j in range(len(names)) if roles[j] == "head"]
+
+    def ancestors(j):
+        out = []
+        while parents[j] >= 0 and len(out) <= len(names):
+            j = int(parents[j])
+            out.append(j)
+        return out
+
+    head = next(h for h in heads if not any(a in heads for a in ancestors(h)))
+    necks = [j for j in reversed(ancestors(head)) if roles[j] == "neck"]
+    jaw, queue = None, [k for k in range(len(names)) if parents[k] == head]
+    while queue and jaw is None:
+        k = queue.pop(0)
+        if roles[k] == "jaw":
+            jaw = k
+        queue.extend(c for c in range(len(names)) if parents[c] == k)
+    out = necks + [None] * (max(3, len(necks)) - len(necks)) + [head]
+    return out + ([jaw] if jaw is not None else [])
+
+
+def _armature_space(obj, arm) -> np.ndarray:
+    """(4, 4) armature space → the mesh's local space (Blender axes, scene units)."""
+    return np.array(obj.matrix_world.inverted() @ arm.matrix_world)
+
+
+def _vertex_group_weights(obj, names) -> np.ndarray:
+    """(N, J) weights of the mesh's vertices on the vertex groups called ``names`` (0 where a vertex is not in a
+    group or there is no group), normalised per vertex where they sum to more than 0, as the Armature modifier
+    does. Blender gives vertex-group weights only per vertex (``vertex.groups``): one Python pass over them."""
+    mesh = obj.data
+    col = {vg.index: names.index(vg.name) for vg in obj.vertex_groups if vg.name in names}
+    rows, cols, vals = [], [], []
+    for v in mesh.vertices:  # no array path exists for vertex-group membership
+        for g in v.groups:
+            c = col.get(g.group)
+            if c is not None:
+                rows.append(v.index)
+                cols.append(c)
+                vals.append(g.weight)
+    W = np.zeros((len(mesh.vertices), len(names)))
+    np.add.at(W, (np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)), np.asarray(vals))
+    total = W.sum(axis=1)
+    W[total > 0] /= total[total > 0, None]
+    return W
+
+
+def _armature_skeleton(obj, scene):
+    """(head-chain :class:`~kdfaces.rig.Skeleton` in the mesh's space [m, kdfaces axes], the chain's bone names
+    (None for added necks)) of the armature deforming ``obj``, or None without one."""
+    from kdfaces.rig.skeleton import head_chain_skeleton
+
+    arm = _armature(obj)
+    if arm is None:
+        return None
+    bones = list(arm.data.bones)
+    names = [b.name for b in bones]
+    parents = np.array([names.index(b.parent.name) if b.parent is not None else -1 for b in bones], dtype=np.int64)
+    Q = _armature_space(obj, arm)
+    heads = np.array([tuple(b.head_local) for b in bones], dtype=np.float64).reshape(-1, 3)
+    pivots = to_kd(heads @ Q[:3, :3].T + Q[:3, 3], scene_unit_m(scene))
+    W = _vertex_group_weights(obj, names)
+    sk = head_chain_skeleton(names, parents, pivots, W, where=f"object {obj.name!r} armature {arm.name!r}")
+    if sk is None:
+        return None
+    return sk, [None if j is None else names[j] for j in _chain_bones(names, parents)]
+
+
+def _armature_bytes(obj) -> tuple[bytes, bytes]:
+    """(rest bytes: bones, their rest matrices, the mesh ← armature matrix, vertex-group weights; pose bytes: the
+    armature action's bone fcurves and the bones' current rotations), or (b"", b"") without an armature."""
+    arm = _armature(obj)
+    if arm is None:
+        return b"", b""
+    rest = [f"{b.name}|{getattr(b.parent, 'name', '')}|{tuple(map(tuple, b.matrix_local))}".encode()
+            for b in arm.data.bones]
+    rest.append(_armature_space(obj, arm).tobytes())
+    rest.append(_vertex_group_weights(obj, [b.name for b in arm.data.bones]).tobytes())
+    pose = [f"{pb.name}|{pb.rotation_mode}|{tuple(pb.rotation_quaternion)}|{tuple(pb.rotation_euler)}".encode()
+            for pb in arm.pose.bones]
+    pose += [f"{fc.data_path}|{fc.array_index}".encode() + _fcurve_bytes(fc) for fc in _fcurve_list(arm)
+             if fc.data_path.startswith("pose.bones")]
+    return b"".join(rest), b"".join(pose)
+
+
+def _armature_motion(obj, scene, frames: np.ndarray, bone_names) -> np.ndarray:
+    """(F, J, 3) (yaw, pitch, roll) [rad] in kdfaces axes of the head-chain joints (``bone_names``: the bone of
+    each joint, None for none) at ``frames``: each bone's pose rotation B·R_pose·Bᵀ in armature space (B its rest
+    rotation), brought into the mesh's axes."""
+    from mathutils import Euler, Quaternion
+
+    arm = _armature(obj)
+    curves = {(fc.data_path, fc.array_index): fc for fc in _fcurve_list(arm)
+              if fc.data_path.startswith("pose.bones") and not fc.mute and len(fc.keyframe_points)}
+    Qr = _armature_space(obj, arm)[:3, :3]
+    Qr = Qr / np.cbrt(np.linalg.det(Qr))  # a uniform scale between the two spaces does not turn anything
+    out = np.zeros((len(frames), len(bone_names), 3))
+    for j, name in enumerate(bone_names):
+        if name is None:
+            continue
+        pb = arm.pose.bones[name]
+
+        def channel(prop, n, current, pb=pb):
+            path = f'pose.bones["{pb.name}"].{prop}'
+            vals = np.empty((len(frames), n))
+            for i in range(n):
+                fc = curves.get((path, i))
+                vals[:, i] = [fc.evaluate(float(f)) for f in frames] if fc is not None else current[i]
+            return vals
+
+        if pb.rotation_mode == "QUATERNION":
+            rot = np.array([np.array(Quaternion(v).normalized().to_matrix())
+                            for v in channel("rotation_quaternion", 4, pb.rotation_quaternion)])
+        elif pb.rotation_mode == "AXIS_ANGLE":
+            raise KDInputError(f"object {obj.name!r}: bone {name!r} of armature {arm.name!r} uses axis-angle "
+                               "rotation; expected quaternion or Euler rotation")
+        else:
+            rot = np.array([np.array(Euler(v, pb.rotation_mode).to_matrix())
+                            for v in channel("rotation_euler", 3, pb.rotation_euler)])
+        B = np.array(pb.bone.matrix_local)[:3, :3]
+        B = B / np.linalg.norm(B, axis=0, keepdims=True)
+        R = Qr @ B @ rot @ B.T @ Qr.T  # about the bone's rest head, in the mesh's Blender axes
+        out[:, j] = _ypr(_P @ R @ _P.T)
+    return out
 
 
 def _motion_bytes(obj) -> bytes:
@@ -377,6 +536,7 @@ def _rig_hash(obj, scene, ref, shapes) -> tuple[bytes, list[np.ndarray]]:
     h = hashlib.blake2b(digest_size=16)
     h.update(f"{n}|{len(mesh.polygons)}|{len(mesh.loops)}|{scene_unit_m(scene)!r}".encode())
     h.update(b"moves" if _transform_fcurves(obj) else b"local")  # a keyed transform gives the rig a head joint
+    h.update(_armature_bytes(obj)[0])  # an armature gives it the head chain and the vertex groups' weights
     blocks = {ref.name: _co(ref, n)}
     h.update(blocks[ref.name].tobytes())
     for kb in shapes:
@@ -404,6 +564,7 @@ def _anim_hash(obj, scene, shapes) -> bytes:
         if fc is not None:
             h.update(_fcurve_bytes(fc))
     h.update(_motion_bytes(obj))
+    h.update(_armature_bytes(obj)[1])
     return h.digest()
 
 
@@ -420,7 +581,10 @@ def _build_rig(obj, scene, ref, shapes, blocks):
         deltas[k] = to_kd(d, unit)
     tri, counts, corners = _topology(mesh)
     skeleton = None
-    if _transform_fcurves(obj):  # the object's keyed transform moves the whole mesh: one "head" joint at its origin
+    chain = _armature_skeleton(obj, scene)
+    if chain is not None:  # the armature's head chain and the vertex groups' weights
+        skeleton = chain[0]
+    elif _transform_fcurves(obj):  # the object's keyed transform moves the whole mesh: one "head" joint at its origin
         from kdfaces.rig import Skeleton
 
         skeleton = Skeleton(names=("head",), positions=np.zeros((1, 3)), parents=np.array([-1]),
@@ -447,8 +611,17 @@ def _build_animation(obj, scene, shapes):
             w[:, k] = [fc.evaluate(float(f)) for f in frames]  # one call per frame and shape, not per vertex
     curve = KeyframeCurve.create(times, w, interpolation="catmull-rom", where=f"object {obj.name!r} shape keys")
     skeleton = SkeletonAnimation()
-    motion = _object_motion(obj, scene, frames)
-    if motion is not None:  # the object's keyed rotation and location drive the head joint (_build_rig)
+    chain = _armature_skeleton(obj, scene)
+    motion = None if chain is not None else _object_motion(obj, scene, frames)
+    if chain is not None:  # each head-chain bone's pose rotation drives its joint (share 1)
+        sk, bone_names = chain
+        angles = _armature_motion(obj, scene, frames, bone_names)
+        where = f"object {obj.name!r} armature"
+        skeleton = SkeletonAnimation(drives=tuple(
+            JointDrive(KeyframeCurve.create(times, angles[:, j], interpolation="catmull-rom", where=where),
+                       shares={joint: 1.0})
+            for j, (joint, bone) in enumerate(zip(sk.names, bone_names, strict=True)) if bone is not None))
+    elif motion is not None:  # the object's keyed rotation and location drive the head joint (_build_rig)
         angles, loc = motion
         where = f"object {obj.name!r} transform"
         skeleton = SkeletonAnimation(
@@ -648,12 +821,16 @@ def apply_kd(obj, scene, frame: float | None = None) -> KDFrame:
     basis = e.basis_co if e is not None and e.basis_co is not None else _co(ref, n)  # as hashed this generation
     d = state.x_kd - state.x_k
     rig = e.rig if e is not None else None
-    if rig is not None and rig.skeleton is not None:  # the object moves: x_KD − x_K is in its parent's axes
+    if rig is not None and rig.skeleton is not None:  # the head moves: x_KD − x_K is in the posed axes
         from kdfaces.rig.skeleton import joint_transforms
 
         t = np.array([state.time_s])
-        G = joint_transforms(rig.skeleton, e.animation.skeleton.joint_angles(rig.skeleton, t, 2))[0]
-        d = d @ G[0, 0, :3, :3]  # Rᵀ·d for each row: the mesh's own axes
+        G = joint_transforms(rig.skeleton, e.animation.skeleton.joint_angles(rig.skeleton, t, 2))[0][0, :, :3, :3]
+        W = rig.skeleton.weights
+        # LBS is linear: the deform (object transform, or the Armature modifier after the shape keys) maps a
+        # key offset d' to B_i d' with B_i = Σ_j w_ij R_j + (1 − Σ_j w_ij) I; solve B_i d' = d per vertex
+        B = np.einsum("nj,jab->nab", W, G) + (1.0 - W.sum(axis=1))[:, None, None] * np.eye(3)
+        d = np.linalg.solve(B, d[:, :, None])[:, :, 0]
     offset = from_kd(d, scene_unit_m(scene)).astype(np.float32)
     kb.relative_key = ref
     kb.data.foreach_set("co", (basis + offset).reshape(-1))

@@ -21,7 +21,7 @@ import numpy as np
 from kdfaces.errors import KDInputError
 
 __all__ = ["Cancelled", "RIG_SUFFIX", "animation_table", "shot_table", "write_shot_file", "object_dynamics",
-           "object_shot_settings", "object_shot_table", "object_shot", "shot_name"]
+           "object_shot_settings", "object_shot_table", "object_shot", "shot_name", "as_rig_file_gives_back"]
 
 #: The rig written next to an exported shot file ``<stem>.toml``: ``<stem>_rig.npz``.
 RIG_SUFFIX = "_rig.npz"
@@ -48,8 +48,9 @@ def _curve_table(curve, where: str) -> tuple[list, list, str]:
 
 def animation_table(animation) -> dict:
     """The ``[animation]`` table (``source = "keys"``) of a :class:`~kdfaces.motion.FaceAnimation`: its shape
-    tracks, its head drive (one yaw/pitch/roll drive on the default head-chain shares, written in degrees), start,
-    end and fps. Float values are written exactly (TOML keeps every bit of a float), so the shot file's animation
+    tracks, its head drive (one yaw/pitch/roll drive on the default head-chain shares, written in degrees) or its
+    joints' own drives (each on one joint with share 1, an armature's pose: ``[[animation.joints]]`` in radians),
+    start, end and fps. Float values are written exactly (TOML keeps every bit of a float), so the shot file's animation
     evaluates to the same numbers. Raises :class:`KDInputError` for what the schema cannot say (a root translation,
     several head drives, drives with other shares, Hermite tangents)."""
     from kdfaces.motion.joints import HEAD_CHAIN_SPLIT
@@ -65,6 +66,15 @@ def animation_table(animation) -> dict:
     sk = animation.skeleton
     if sk.root is not None:
         raise KDInputError("animation: a root translation has no shot-file form; expected the head's rotation only")
+    if sk.drives and all(len(d.shares) == 1 and list(d.shares.values())[0] == 1.0 for d in sk.drives):
+        joints = []  # each joint's own angles (an armature's pose): [[animation.joints]], radians, exact
+        for i, d in enumerate(sk.drives):
+            t, v, interp = _curve_table(d.curve, f"animation.joints[{i}]")
+            v = np.asarray(v, dtype=np.float64)
+            joints.append({"joint": str(next(iter(d.shares))), "times_s": t, "yaw_rad": v[:, 0].tolist(),
+                           "pitch_rad": v[:, 1].tolist(), "roll_rad": v[:, 2].tolist(), "interpolation": interp})
+        out["joints"] = joints
+        return out
     if len(sk.drives) > 1:
         raise KDInputError(f"animation: {len(sk.drives)} joint drives; a shot file keys one head drive")
     if sk.drives:
@@ -195,16 +205,32 @@ def object_shot_table(obj, scene, constraints, *, rig_source: str = "rig.npz") -
     """The object's shot file as a dict: its rig (``rig_source``), shape-key animation over the scene's range,
     ``[dynamics]`` from its KD settings, and ``constraints`` (tables, e.g.
     :func:`kdfaces.blender.ikd.constraint_tables`)."""
-    from .scene import object_animation
+    from .scene import _armature, object_animation
 
     anim = object_animation(obj, scene)
     sk = anim.skeleton
-    if sk.root is not None or sk.drives:
+    if _armature(obj) is None and (sk.root is not None or sk.drives):
         raise KDInputError(f"object {obj.name!r}: its own transform is keyed (head motion), which a shot file cannot "
                            "say yet (no root translation, no object-origin joint); IKD, bakes and Export shot file "
                            "need an object whose transform is not keyed (key a parent Empty instead)")
     return shot_table(name=shot_name(obj.name), rig_source=rig_source, animation=anim,
                       dynamics=object_dynamics(obj, scene), constraints=list(constraints))
+
+
+def as_rig_file_gives_back(rig):
+    """``rig`` as its rig file (:func:`kdfaces.io.rigfiles.save_npz`, what :func:`write_shot_file` writes) loads
+    back: skin weights rounded to float32 and rows that sum to one (within 1e-5) renormalised, as
+    :func:`~kdfaces.io.rigfiles.load_npz` does; everything else is stored exactly. A bake computes on this rig, so
+    it is ``kdfaces run`` on the exported shot file bit for bit (a skinned rig's x_K moves by ~1e-8 m)."""
+    import dataclasses
+
+    sk = rig.skeleton
+    if sk is None:
+        return rig
+    w = sk.weights.astype(np.float32).astype(np.float64)
+    total = w.sum(axis=1, keepdims=True)
+    w = np.where(np.abs(total - 1.0) < 1e-5, w / np.where(total > 0, total, 1.0), w)
+    return dataclasses.replace(rig, skeleton=dataclasses.replace(sk, weights=w))
 
 
 def object_shot(obj, scene, constraints, *, path=None):
@@ -216,4 +242,4 @@ def object_shot(obj, scene, constraints, *, path=None):
 
     table = object_shot_table(obj, scene, constraints)
     where = Path(path) if path is not None else Path(f"{shot_name(obj.name)}.toml")
-    return parse_shot(table, where, rig=object_rig(obj, scene))
+    return parse_shot(table, where, rig=as_rig_file_gives_back(object_rig(obj, scene)))

@@ -67,6 +67,21 @@ class HeadTable(_Table):
     interpolation: Interp = "ease"
 
 
+Radians = Annotated[float, Field(ge=-6.283185307179586, le=6.283185307179586, allow_inf_nan=False)]
+
+
+class JointTable(_Table):
+    """``[[animation.joints]]``: keys of one skeleton joint's own yaw, pitch and roll [rad] (share 1; radians so
+    that angles read from a DCC's pose, e.g. the Blender extension's armature, are written bit for bit)."""
+
+    joint: str
+    times_s: Annotated[list[TimeS], Field(min_length=1)]
+    yaw_rad: list[Radians] | None = None
+    pitch_rad: list[Radians] | None = None
+    roll_rad: list[Radians] | None = None
+    interpolation: Interp = "ease"
+
+
 class AnimationTable(_Table):
     """``[animation]``: the built-in demo, keys, or a Live Link Face CSV capture."""
 
@@ -76,6 +91,7 @@ class AnimationTable(_Table):
     end_s: TimeS | None = None
     tracks: list[TrackTable] = []
     head: HeadTable | None = None
+    joints: list[JointTable] = []
     map: dict[str, str | list[str] | Literal[False]] = {}
     strict: bool = False
 

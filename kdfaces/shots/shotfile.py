@@ -13,6 +13,7 @@ fps = 25                           # optional; start_s / end_s crop a capture
 # with source = "keys":  end_s = 3.0  and
 # [[animation.tracks]]  shapes = ["mouthSmileLeft"], times_s = [0, 1], values = [[0], [1]], interpolation = "ease"
 # [animation.head]      times_s = [...], yaw_deg = [...], pitch_deg = [...], roll_deg = [...]
+# [[animation.joints]]  joint = "neck01", times_s = [...], yaw_rad = [...], pitch_rad = [...], roll_rad = [...]
 strict = false                     # a capture channel the rig lacks is skipped with a warning (true: an error)
 [animation.map]                    # capture channel → the rig's shape(s); false drops the channel
 # browInnerUp = ["browInnerUp_L", "browInnerUp_R"]   (side-split shapes are found by themselves)
@@ -447,6 +448,20 @@ def _animation(a, base: Path, where: str, rig) -> FaceAnimation:
                     raise KDInputError(f"{w}.{key}: expected {n} angles (one per key in times_s), got {len(vals)}")
                 cols.append(np.zeros(n) if vals is None else np.asarray(vals, dtype=np.float64))
             drives = (JointDrive(_curve(hd.times_s, np.radians(np.stack(cols, axis=1)), hd.interpolation, w)),)
+        for i, jt in enumerate(a.joints):  # one joint's own angles [rad], share 1
+            w = f"{where}.joints[{i}]"
+            if rig.skeleton is None or jt.joint not in rig.skeleton.names:
+                raise KDInputError(f"{w}.joint: {jt.joint!r} is not a joint of rig {rig.name!r} (joints: "
+                                   f"{list(rig.skeleton.names) if rig.skeleton is not None else 'none'})")
+            n = len(jt.times_s)
+            cols = []
+            for key in ("yaw_rad", "pitch_rad", "roll_rad"):
+                vals = getattr(jt, key)
+                if vals is not None and len(vals) != n:
+                    raise KDInputError(f"{w}.{key}: expected {n} angles (one per key in times_s), got {len(vals)}")
+                cols.append(np.zeros(n) if vals is None else np.asarray(vals, dtype=np.float64))
+            drives += (JointDrive(_curve(jt.times_s, np.stack(cols, axis=1), jt.interpolation, w),
+                                  shares={jt.joint: 1.0}),)
         if a.end_s is None:
             raise KDInputError(f"{where}: keyed animations need 'end_s'")
         start = 0.0 if a.start_s is None else a.start_s

@@ -1,0 +1,236 @@
+"""Head motion from an armature, in Blender (``bpy`` 4.5 as a module, in a subprocess with fresh user folders).
+
+The demo's default head with the demo animation (expressions, the head turn) goes out through the toolkit's glTF
+export with its skin (``save_gltf(..., skin=True)``: a ``body`` root, neck01–03, head, jaw, each joint's rotation
+keyed per frame) and comes into Blender through Blender's own glTF importer: a mesh with shape keys under an
+armature with pose-bone rotation keys in Blender's bone frames. The extension reads the armature into the head
+chain and its pose into joint angles (:mod:`kdfaces.blender.scene`). The rig is written without UVs, so the glTF
+keeps the rig's 4,774 vertices in order (with UVs it splits seams, and the seam copies are free vertices in a
+model built from the imported mesh).
+
+The shot is cut to the demo's first 1.48 s (scene frames 1–38, 38 frames: the head turn and its sharp stop at
+1.0 s) to keep the Blender session short.
+
+Tolerances: glTF stores float32, so bone pivots and skin weights come back to a float32 rounding (≤ 6e-8 m on a
+0.7 m pivot, weights ≤ 6e-8), quaternions to ~1e-7 rad; the shape keys' points and the KD key are float32 at head
+scale (spacing 6e-8 m, a few roundings), so positions compare to 1e-6 m. The window is 0.5 s, exactly a float32 (the
+panel's FloatProperty stores float32; a window like 0.4 s would be 0.4000000059 s in Blender and take one more
+step).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import filecmp
+import json
+import os
+import subprocess
+import textwrap
+from contextlib import ExitStack
+
+import numpy as np
+import pytest
+from fbx_fixtures import BPY_PYTHON, bpy_available
+
+pytestmark = pytest.mark.skipif(not bpy_available(), reason="bpy (Blender 4.5 as a module, the 'blender' extra) "
+                                "is not installed")
+
+FRAMES = (37, 12, 30, 37)  # out of order; 37 twice
+F0, F1 = 1, 38
+FPS = 25.0
+WINDOW_S = 0.5
+SETTINGS = {"stiff_s": 0.25, "loose_s": 0.6, "damping_ratio": 0.3, "shape_matching_alpha": 0.2}  # the demo's
+FLOAT32_M = 1e-6
+
+_SESSION = r'''
+import json, os, sys, time
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+out, gltf = Path(sys.argv[1]), sys.argv[2]
+cfg = json.loads(sys.argv[3])
+R = {}
+bpy.ops.wm.read_factory_settings(use_empty=True)
+import kdfaces.blender
+from kdfaces.blender import bake
+from kdfaces.blender import scene as ks
+
+kdfaces.blender.register()
+sc = bpy.context.scene
+sc.render.fps, sc.render.fps_base = 25, 1.0
+bpy.ops.import_scene.gltf(filepath=gltf)
+ob = next(o for o in sc.objects if o.type == "MESH")
+arm = ob.find_armature()
+R["armature"] = None if arm is None else [b.name for b in arm.data.bones]
+R["bone_keys"] = sorted({fc.data_path for fc in ks._fcurve_list(arm)}) if arm is not None else []
+sc.frame_start, sc.frame_end = cfg["f0"], cfg["f1"]
+for k, v in cfg["settings"].items():
+    setattr(ob.kdfaces, k, v)
+ob.kdfaces.window_mode, ob.kdfaces.window_s = "seconds", cfg["window_s"]
+bpy.context.view_layer.objects.active = ob
+ob.select_set(True)
+e = ks.object_entry(ob, sc)
+sk = e.rig.skeleton
+times = np.arange(cfg["f1"] - cfg["f0"] + 1) / 25.0
+A = {"pivots": sk.positions, "weights": sk.weights,
+     "angles": e.animation.skeleton.joint_angles(sk, times, 0)[0], "x_k": e.trajectory.positions(times),
+     "basis": ks.to_kd(e.basis_co, 1.0)}
+R["joints"] = list(sk.names)
+R["enable"] = sorted(bpy.ops.kdfaces.enable_kd())
+
+
+def evaluated():
+    dg = bpy.context.evaluated_depsgraph_get()
+    me = ob.evaluated_get(dg).data
+    co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+    me.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3)
+
+
+for i, f in enumerate(cfg["frames"]):
+    sc.frame_set(f)
+    A[f"visit_{i}"] = evaluated()
+path, run = bake.bake_object(ob, sc, out / "face.pc2")
+bake.export_object_shot(ob, sc, out / "face_shot.toml")
+sc.frame_set(cfg["frames"][2])
+A["cache_frame"] = evaluated()  # the Mesh Cache (last in the stack, after the Armature modifier) plays the bake
+R["modifiers"] = [m.type for m in ob.modifiers]
+np.savez(out / "arrays.npz", **A)
+(out / "session.json").write_text(json.dumps(R, indent=1))
+sys.stdout.flush()
+os._exit(0)  # bpy 4.5 can hang at exit
+'''
+
+
+def _to_kd(co):
+    co = np.asarray(co, dtype=np.float64)
+    return np.stack([co[..., 0], co[..., 2], -co[..., 1]], axis=-1)
+
+
+@pytest.fixture(scope="module")
+def demo():
+    from kdfaces.shots import load_shot
+    from kdfaces.shots.builtin import DEMO_SHOT
+
+    return load_shot(DEMO_SHOT)
+
+
+@pytest.fixture(scope="module")
+def session(demo, tmp_path_factory):
+    from kdfaces.io.gltf import save_gltf
+
+    out = tmp_path_factory.mktemp("blender_armature")
+    home = tmp_path_factory.mktemp("blender_home")
+    gltf = save_gltf(dataclasses.replace(demo.rig, uvs=None), out / "demo_skin.gltf", animation=demo.animation,
+                     skin=True)
+    env = dict(os.environ)
+    for var in ("BLENDER_USER_RESOURCES", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS", "BLENDER_USER_DATAFILES",
+                "BLENDER_USER_EXTENSIONS"):
+        env[var] = str(home / var.lower())
+        (home / var.lower()).mkdir(parents=True, exist_ok=True)
+    cfg = {"f0": F0, "f1": F1, "frames": list(FRAMES), "window_s": WINDOW_S, "settings": SETTINGS}
+    r = subprocess.run([BPY_PYTHON, "-c", textwrap.dedent(_SESSION), str(out), str(gltf), json.dumps(cfg)],
+                       capture_output=True, text=True, timeout=600, env=env)
+    if r.returncode != 0 or not (out / "session.json").is_file():
+        raise AssertionError(f"bpy session failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+    with np.load(out / "arrays.npz") as d:
+        arrays = {k: d[k] for k in d.files}
+    return out, gltf, json.loads((out / "session.json").read_text()), arrays
+
+
+@pytest.fixture(scope="module")
+def reference(demo, session):
+    """simulate_kd by the library alone: the rig ``load_gltf`` reads from the same file (its skin → the head
+    chain), the demo's shape weights and joint angles at every frame of the cut, through those frames."""
+    from kdfaces.blender.scene import KDSettings, _model
+    from kdfaces.dynamics import FaceSystem
+    from kdfaces.io.gltf import load_gltf
+    from kdfaces.kd import simulate_kd
+    from kdfaces.motion import (
+        FaceAnimation,
+        JointDrive,
+        KeyframeCurve,
+        KinematicTrajectory,
+        ShapeTrack,
+        SkeletonAnimation,
+    )
+
+    _, gltf, _, _ = session
+    rig = load_gltf(gltf)[0]
+    times = np.arange(F1 - F0 + 1) / FPS
+    shapes_only = dataclasses.replace(demo.animation, skeleton=SkeletonAnimation())
+    w = KinematicTrajectory(rig, shapes_only, strict=False).weights(times, 0)[0]
+    angles = demo.animation.skeleton.joint_angles(rig.skeleton, times, 0)[0]
+    anim = FaceAnimation(
+        tracks=(ShapeTrack(tuple(rig.shape_names), KeyframeCurve.create(times, w, interpolation="catmull-rom")),),
+        skeleton=SkeletonAnimation(drives=tuple(
+            JointDrive(KeyframeCurve.create(times, angles[:, j], interpolation="catmull-rom"), shares={n: 1.0})
+            for j, n in enumerate(rig.skeleton.names))),
+        start_s=0.0, end_s=float(times[-1]), fps=FPS)
+    traj = KinematicTrajectory(rig, anim)
+    system = FaceSystem(_model(rig, KDSettings(**{k: float(np.float32(v)) for k, v in SETTINGS.items()})))
+    t = (np.array(FRAMES, dtype=np.float64) - F0) / FPS
+    x = simulate_kd(system, traj, t, WINDOW_S)
+    system.close()
+    return rig, angles, traj, t, x
+
+
+def test_the_glTF_skin_comes_in_as_an_armature_with_pose_keys(session):
+    _, _, res, _ = session
+    assert res["armature"] == ["body", "neck01", "neck02", "neck03", "head", "jaw"]
+    assert {f'pose.bones["{b}"].rotation_quaternion' for b in ("neck01", "neck02", "neck03", "head")} <= \
+        set(res["bone_keys"])
+
+
+def test_the_armature_is_the_head_chain(session, reference):
+    _, _, res, a = session
+    rig, angles, _, _, _ = reference
+    assert res["joints"] == list(rig.skeleton.names)
+    assert np.abs(a["pivots"] - rig.skeleton.positions).max() <= 1e-7  # float32 pivots at 0.7 m
+    assert np.abs(a["weights"] - rig.skeleton.weights).max() <= 1e-6  # float32 weights, renormalised
+    assert np.abs(a["weights"].sum(axis=1) - rig.skeleton.weights.sum(axis=1)).max() <= 1e-6
+
+
+def test_pose_rotations_are_the_demo_joint_angles(session, reference):
+    _, _, _, a = session
+    _, angles, traj, _, _ = reference
+    assert np.abs(angles).max() > np.radians(10)  # the head turn is there (else this test could not fail)
+    assert np.abs(a["angles"] - angles).max() <= 1e-6  # float32 quaternions, ~1e-7 rad
+    times = np.arange(F1 - F0 + 1) / FPS
+    assert np.abs(a["x_k"] - traj.positions(times)).max() <= FLOAT32_M
+
+
+def test_kd_on_the_timeline_equals_simulate_kd_with_the_head_turn(session, reference):
+    _, _, res, a = session
+    _, _, traj, t, x = reference
+    assert res["enable"] == ["FINISHED"]
+    for i, f in enumerate(FRAMES):
+        got = _to_kd(a[f"visit_{i}"])
+        assert np.abs(got - x[i]).max() <= FLOAT32_M, f
+    # the evaluated mesh is posed (the Armature modifier after the KD key) and KD deviates from x_K
+    assert np.abs(x[2] - a["basis"]).max() > 0.01
+    assert np.abs(x[2] - traj.positions(t[2:3])[0]).max() > 1e-3
+    assert np.array_equal(a["visit_0"], a["visit_3"])  # frame 37 twice, bit for bit
+
+
+def test_bake_with_the_armature_equals_kdfaces_run_on_the_exported_shot_file(session, reference, tmp_path):
+    from kdfaces.io.pointcache import read_pc2
+    from kdfaces.shots import load_shot
+    from kdfaces.shots.run import open_run_exports, run_shot
+
+    out, _, res, a = session
+    _, _, _, _, x = reference
+    shot = load_shot(out / "face_shot.toml")  # what `kdfaces run face_shot.toml --export pc2` does
+    assert len(shot.animation.skeleton.drives) == 5  # [[animation.joints]]: each joint's own angles
+    with ExitStack() as stack:
+        writers = [stack.enter_context(w) for w in open_run_exports(shot, tmp_path, ["pc2"])]
+        run_shot(shot, sinks=[lambda lo, hi, xx, w=w: w.write(xx) for w in writers])
+    assert filecmp.cmp(writers[0].path, out / "face.pc2", shallow=False)  # byte for byte
+    pc = read_pc2(out / "face.pc2")
+    assert pc.positions.shape[0] == F1 - F0 + 1
+    for i, f in enumerate(FRAMES):  # the bake is the live KD
+        assert np.abs(pc.positions[f - F0] - x[i]).max() <= FLOAT32_M, f
+    assert res["modifiers"][-1] == "MESH_CACHE" and "ARMATURE" in res["modifiers"]
+    assert np.abs(_to_kd(a["cache_frame"]) - pc.positions[FRAMES[2] - F0]).max() <= FLOAT32_M

@@ -302,9 +302,10 @@ def _armature(obj):
     return arm
 
 
-def _chain_bones(names, parents) -> list:
-    """The armature bone (index) of each joint :func:`kdfaces.rig.skeleton.head_chain_skeleton` makes, in its
-    order (neck01…, head, jaw): None for a neck joint it adds."""
+def _chain_bones(names, parents) -> tuple[list, list]:
+    """(joint names, the armature bone (index) of each joint) of what
+    :func:`kdfaces.rig.skeleton.head_chain_skeleton` makes, in its order (neck01…, head, jaw): None for a neck
+    joint it adds."""
     from kdfaces.rig.skeleton import joint_role
 
     roles = [joint_role(n) for n in names]
@@ -325,8 +326,9 @@ def _chain_bones(names, parents) -> list:
         if roles[k] == "jaw":
             jaw = k
         queue.extend(c for c in range(len(names)) if parents[c] == k)
-    out = necks + [None] * (max(3, len(necks)) - len(necks)) + [head]
-    return out + ([jaw] if jaw is not None else [])
+    n_neck = max(3, len(necks))
+    out = necks + [None] * (n_neck - len(necks)) + [head] + ([jaw] if jaw is not None else [])
+    return [f"neck{i + 1:02d}" for i in range(n_neck)] + ["head"] + (["jaw"] if jaw is not None else []), out
 
 
 def _armature_space(obj, arm) -> np.ndarray:
@@ -373,7 +375,7 @@ def _armature_skeleton(obj, scene):
     sk = head_chain_skeleton(names, parents, pivots, W, where=f"object {obj.name!r} armature {arm.name!r}")
     if sk is None:
         return None
-    return sk, [None if j is None else names[j] for j in _chain_bones(names, parents)]
+    return sk, [None if j is None else names[j] for j in _chain_bones(names, parents)[1]]
 
 
 def _armature_bytes(obj) -> tuple[bytes, bytes]:
@@ -611,16 +613,19 @@ def _build_animation(obj, scene, shapes):
             w[:, k] = [fc.evaluate(float(f)) for f in frames]  # one call per frame and shape, not per vertex
     curve = KeyframeCurve.create(times, w, interpolation="catmull-rom", where=f"object {obj.name!r} shape keys")
     skeleton = SkeletonAnimation()
-    chain = _armature_skeleton(obj, scene)
-    motion = None if chain is not None else _object_motion(obj, scene, frames)
-    if chain is not None:  # each head-chain bone's pose rotation drives its joint (share 1)
-        sk, bone_names = chain
+    arm = _armature(obj)
+    motion = None if arm is not None else _object_motion(obj, scene, frames)
+    if arm is not None:  # each head-chain bone's pose rotation drives its joint (share 1)
+        names = [b.name for b in arm.data.bones]
+        parents = [names.index(b.parent.name) if b.parent is not None else -1 for b in arm.data.bones]
+        joints, bones = _chain_bones(names, parents)
+        bone_names = [None if j is None else names[j] for j in bones]
         angles = _armature_motion(obj, scene, frames, bone_names)
         where = f"object {obj.name!r} armature"
         skeleton = SkeletonAnimation(drives=tuple(
             JointDrive(KeyframeCurve.create(times, angles[:, j], interpolation="catmull-rom", where=where),
                        shares={joint: 1.0})
-            for j, (joint, bone) in enumerate(zip(sk.names, bone_names, strict=True)) if bone is not None))
+            for j, (joint, bone) in enumerate(zip(joints, bone_names, strict=True)) if bone is not None))
     elif motion is not None:  # the object's keyed rotation and location drive the head joint (_build_rig)
         angles, loc = motion
         where = f"object {obj.name!r} transform"

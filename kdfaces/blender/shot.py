@@ -6,7 +6,10 @@
 - :func:`object_shot_table` / :func:`object_shot`: the shot of a Blender mesh object (its rig, shape-key animation
   and KD settings from :mod:`kdfaces.blender.scene`, the window its live KD uses), for constraint tables given by
   the caller (:func:`kdfaces.blender.ikd.constraint_tables`); :func:`object_shot_settings`, what a stored IKD
-  correction depends on besides its constraints.
+  correction depends on besides its constraints. An armature's pose is written as ``[[animation.joints]]`` (each
+  head-chain joint's own angles, radians); :func:`object_shot` holds the rig as the shot's rig file loads back
+  (:func:`as_rig_file_gives_back`: float32 skin weights), so a bake is ``kdfaces run`` on the exported file bit
+  for bit.
 
 Used by :mod:`kdfaces.blender.ikd` (Solve IKD) and :mod:`kdfaces.blender.bake` (bakes, Export shot file); it imports
 neither.

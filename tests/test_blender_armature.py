@@ -97,6 +97,23 @@ bake.export_object_shot(ob, sc, out / "face_shot.toml")
 sc.frame_set(cfg["frames"][2])
 A["cache_frame"] = evaluated()  # the Mesh Cache (last in the stack, after the Armature modifier) plays the bake
 R["modifiers"] = [m.type for m in ob.modifiers]
+ob.modifiers.remove(ob.modifiers["KD cache"])
+# latency of a frame change with the armature (the frame handler's own timing), random frames
+from kdfaces.blender import handlers, ikd
+
+rng = np.random.default_rng(0)
+ms = []
+for f in rng.integers(cfg["f0"], cfg["f1"] + 1, size=12):
+    sc.frame_set(int(f))
+    ms.append(handlers.STATUS[ob.name][2])
+R["frame_ms"] = ms
+# a 'hold' marker at frame 30 (the head turned): Solve IKD, then the evaluated mesh holds the animated pose there
+sc.timeline_markers.new("hold", frame=30)
+r = ikd.solve_object(ob, sc)
+R["ikd"] = {"converged": bool(r.converged), "errors_m": [float(x) for x in r.errors_after]}
+sc.frame_set(29)
+sc.frame_set(30)
+A["held_30"] = evaluated()
 np.savez(out / "arrays.npz", **A)
 (out / "session.json").write_text(json.dumps(R, indent=1))
 sys.stdout.flush()
@@ -234,3 +251,21 @@ def test_bake_with_the_armature_equals_kdfaces_run_on_the_exported_shot_file(ses
         assert np.abs(pc.positions[f - F0] - x[i]).max() <= FLOAT32_M, f
     assert res["modifiers"][-1] == "MESH_CACHE" and "ARMATURE" in res["modifiers"]
     assert np.abs(_to_kd(a["cache_frame"]) - pc.positions[FRAMES[2] - F0]).max() <= FLOAT32_M
+
+
+def test_a_frame_change_with_the_armature_is_fast(session):
+    _, _, res, _ = session
+    # the 4.8k head's frame update target is 15 ms median (issue 27); a shared 2-core machine is noisy, so this
+    # only guards against a per-frame cost of another order (e.g. re-reading the vertex groups on every frame)
+    assert np.median(res["frame_ms"]) <= 100.0, res["frame_ms"]
+
+
+def test_solve_ikd_holds_the_turned_head_pose(session, reference):
+    from kdfaces import defaults
+
+    _, _, res, a = session
+    _, _, traj, _, x = reference
+    assert res["ikd"]["converged"], res["ikd"]
+    x_k = traj.positions(np.array([(30 - F0) / FPS]))[0]
+    assert np.abs(x[2] - x_k).max() > 1e-3  # KD alone misses the pose there
+    assert np.abs(_to_kd(a["held_30"]) - x_k).max() <= defaults.TOLERANCE_M + FLOAT32_M

@@ -114,6 +114,22 @@ R["ikd"] = {"converged": bool(r.converged), "errors_m": [float(x) for x in r.err
 sc.frame_set(29)
 sc.frame_set(30)
 A["held_30"] = evaluated()
+# bad input: a chain bone in axis-angle rotation is one line, and the KD key is left as it was
+from kdfaces.errors import KDInputError
+
+pb = arm.pose.bones["head"]
+before = np.empty(len(ob.data.vertices) * 3, dtype=np.float32)
+ob.data.shape_keys.key_blocks[ks.KD_KEY].data.foreach_get("co", before)
+pb.rotation_mode = "AXIS_ANGLE"
+ks.note_edit()
+try:
+    ks.apply_kd(ob, sc, 12)
+    R["axis_angle"] = "accepted"
+except KDInputError as e:
+    R["axis_angle"] = str(e)
+after = np.empty_like(before)
+ob.data.shape_keys.key_blocks[ks.KD_KEY].data.foreach_get("co", after)
+R["axis_angle_key_unchanged"] = bool(np.array_equal(before, after))
 np.savez(out / "arrays.npz", **A)
 (out / "session.json").write_text(json.dumps(R, indent=1))
 sys.stdout.flush()
@@ -269,3 +285,10 @@ def test_solve_ikd_holds_the_turned_head_pose(session, reference):
     x_k = traj.positions(np.array([(30 - F0) / FPS]))[0]
     assert np.abs(x[2] - x_k).max() > 1e-3  # KD alone misses the pose there
     assert np.abs(_to_kd(a["held_30"]) - x_k).max() <= defaults.TOLERANCE_M + FLOAT32_M
+
+
+def test_an_axis_angle_bone_is_one_line_and_the_key_is_unchanged(session):
+    _, _, res, _ = session
+    msg = res["axis_angle"]
+    assert "\n" not in msg and "'head'" in msg and "axis-angle" in msg and "expected quaternion or Euler" in msg
+    assert res["axis_angle_key_unchanged"]

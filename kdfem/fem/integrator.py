@@ -634,7 +634,7 @@ class ImplicitEuler:
                                                 f"{h:g} s (batch member {b}; no admissible continuation past "
                                                 f"τ = {tau:.3g}); use a smaller step_s")
                 Cs = Cs1
-                vc, it_r, kappa = minimise(found)
+                vc, it_r, kappa = minimise(found, final=tau1 >= 1.0)
                 its += it_r
                 tau = tau1
                 self.contact_rounds += 1
@@ -643,8 +643,11 @@ class ImplicitEuler:
                                             f"end in 64 rounds (batch member {b}, τ = {tau:.3g})")
             return vc, its, kappa
 
-        def minimise(v):  # projected Newton on E_c from the admissible first guess v (class docstring)
+        def minimise(v, final=True):  # projected Newton on E_c from the admissible first guess v (class docstring)
+            # a continuation round before the last (final=False) is only a first guess: 100 tol_m or a third of the
+            # iterations is enough for it (a tip sliding on a frictionless collider converges linearly there)
             nonlocal kappa_f
+            tol_m, max_iter = (self.tol_m, self.max_iter) if final else (100.0 * self.tol_m, self.max_iter // 3)
             E, r, det, scale, col, V, gB = energy(v, 1.0)
             if cm.kappa is not None:
                 kappa, kappa_max = float(cm.kappa), float(cm.kappa)
@@ -666,7 +669,9 @@ class ImplicitEuler:
             it, size = 0, np.inf
             while True:
                 it += 1
-                if it > self.max_iter:
+                if it > max_iter:
+                    if not final:
+                        break
                     raise SimulationBlowUpError(f"{where}: Newton with contact did not converge in {self.max_iter} "
                                                 f"iterations (batch member {b}; last position update "
                                                 f"{h * size:.3g} m > tol_m {self.tol_m} m)")
@@ -686,13 +691,13 @@ class ImplicitEuler:
                 # converged: the full Newton step (not the line search's fraction of it, which CCD may cut) moves no
                 # node by tol_m; it is taken when CCD allows it whole, else the search below bounds it as any other
                 t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
-                done = h * size < self.tol_m
+                done = h * size < tol_m
                 slope = float((d * r).sum())
                 while True:
                     vt = v.copy()
                     vt[0, fr] += t * d
                     Et, rt, dt, st, colt, Vt, gBt = energy(vt, kappa)
-                    if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < 0.1 * self.tol_m):
+                    if dt > 0 and (Et <= E + 1e-4 * t * slope + 1e-12 * scale or h * t * size < 0.1 * tol_m):
                         break
                     t *= 0.5
                     if t < 1e-8:

@@ -378,21 +378,30 @@ def _armature_skeleton(obj, scene):
     return sk, [None if j is None else names[j] for j in _chain_bones(names, parents)[1]]
 
 
-def _armature_bytes(obj) -> tuple[bytes, bytes]:
-    """(rest bytes: bones, their rest matrices, the mesh ← armature matrix, vertex-group weights; pose bytes: the
-    armature action's bone fcurves and the bones' current rotations), or (b"", b"") without an armature."""
+def _armature_rest_bytes(obj) -> bytes:
+    """The armature's bones, their rest matrices, the mesh ← armature matrix and the vertex-group weights (b""
+    without an armature): what the rig's head chain depends on."""
     arm = _armature(obj)
     if arm is None:
-        return b"", b""
+        return b""
     rest = [f"{b.name}|{getattr(b.parent, 'name', '')}|{tuple(map(tuple, b.matrix_local))}".encode()
             for b in arm.data.bones]
     rest.append(_armature_space(obj, arm).tobytes())
     rest.append(_vertex_group_weights(obj, [b.name for b in arm.data.bones]).tobytes())
+    return b"".join(rest)
+
+
+def _armature_pose_bytes(obj) -> bytes:
+    """The armature action's bone fcurves and the bones' current rotations (b"" without an armature): what the
+    joint drives depend on."""
+    arm = _armature(obj)
+    if arm is None:
+        return b""
     pose = [f"{pb.name}|{pb.rotation_mode}|{tuple(pb.rotation_quaternion)}|{tuple(pb.rotation_euler)}".encode()
             for pb in arm.pose.bones]
     pose += [f"{fc.data_path}|{fc.array_index}".encode() + _fcurve_bytes(fc) for fc in _fcurve_list(arm)
              if fc.data_path.startswith("pose.bones")]
-    return b"".join(rest), b"".join(pose)
+    return b"".join(pose)
 
 
 def _armature_motion(obj, scene, frames: np.ndarray, bone_names) -> np.ndarray:
@@ -538,7 +547,7 @@ def _rig_hash(obj, scene, ref, shapes) -> tuple[bytes, list[np.ndarray]]:
     h = hashlib.blake2b(digest_size=16)
     h.update(f"{n}|{len(mesh.polygons)}|{len(mesh.loops)}|{scene_unit_m(scene)!r}".encode())
     h.update(b"moves" if _transform_fcurves(obj) else b"local")  # a keyed transform gives the rig a head joint
-    h.update(_armature_bytes(obj)[0])  # an armature gives it the head chain and the vertex groups' weights
+    h.update(_armature_rest_bytes(obj))  # an armature gives it the head chain and the vertex groups' weights
     blocks = {ref.name: _co(ref, n)}
     h.update(blocks[ref.name].tobytes())
     for kb in shapes:
@@ -566,7 +575,7 @@ def _anim_hash(obj, scene, shapes) -> bytes:
         if fc is not None:
             h.update(_fcurve_bytes(fc))
     h.update(_motion_bytes(obj))
-    h.update(_armature_bytes(obj)[1])
+    h.update(_armature_pose_bytes(obj))
     return h.digest()
 
 

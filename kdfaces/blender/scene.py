@@ -54,12 +54,13 @@ The API the panel, the frame handler, IKD and bake build on:
 
 Everything derived is cached per object (:func:`object_entry`) under a BLAKE2 hash of all it depends on — the
 basis and shape-key coordinates, key names, relative keys, mute flags and values, the topology, the fcurves'
-keyframes and handles, the scene's fps, frame range and unit scale, and the settings — so the cache is never
-stale: edit a key, a keyframe or a setting and the next frame rebuilds what changed. Reading every shape key costs
-~2 ms per key in Blender (``foreach_get`` on shape-key points is not a raw-array path), so inside the extension
-the full hash is recomputed only after an edit Blender reports (``depsgraph_update_post``, :func:`note_edit`;
-frame changes are not edits); names, counts, scene timing and settings are compared on every call. Outside the
-extension (:func:`track_edits` off) every call hashes everything.
+keyframes and handles, an armature's bones, rest matrices, vertex-group weights and bone fcurves, the scene's fps,
+frame range and unit scale, and the settings — so the cache is never stale: edit a key, a keyframe or a setting
+and the next frame rebuilds what changed. Reading every shape key costs ~2 ms per key in Blender (``foreach_get``
+on shape-key points is not a raw-array path), so inside the extension the full hash is recomputed only after an
+edit Blender reports (``depsgraph_update_post``, :func:`note_edit`; frame changes are not edits); names, counts,
+scene timing and settings are compared on every call. Outside the extension (:func:`track_edits` off) every call
+hashes everything.
 """
 
 from __future__ import annotations

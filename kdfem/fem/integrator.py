@@ -214,6 +214,16 @@ def rigid_carry_velocity(x: np.ndarray, x_att1: np.ndarray, attached: np.ndarray
     return v
 
 
+def _ccd(mesh, V0: np.ndarray, V1: np.ndarray) -> float:
+    """ipctk's collision-free step size [-] from vertices ``V0`` to ``V1`` (V, 3) [m] of the collision ``mesh``, by
+    TightInclusion at :data:`kdfaces.defaults.CCD_TOLERANCE` and :data:`~kdfaces.defaults.CCD_MAX_ITERATIONS`
+    (conservative: never past the first time of impact)."""
+    import ipctk
+
+    return float(ipctk.compute_collision_free_stepsize(
+        mesh, V0, V1, narrow_phase_ccd=ipctk.TightInclusionCCD(defaults.CCD_TOLERANCE, defaults.CCD_MAX_ITERATIONS)))
+
+
 def _factor_spd(A: sp.spmatrix) -> spla.SuperLU:
     """SuperLU of an SPD matrix in symmetric mode (minimum degree on AᵀA + A, diagonal pivots: ~1.7× faster and
     a third less fill than the default COLAMD for the hat's Newton matrices)."""
@@ -568,7 +578,7 @@ class ImplicitEuler:
             if not self.workspace(1).min_det(xn + h * cand)[0] > 0:
                 continue
             widen(cand)
-            if ipctk.compute_collision_free_stepsize(loc.mesh, loc.vertices(xo_n, C0), verts(cand)) >= 1.0:
+            if _ccd(loc.mesh, loc.vertices(xo_n, C0), verts(cand)) >= 1.0:
                 v = cand
                 break
 
@@ -622,7 +632,7 @@ class ImplicitEuler:
                         if not self.workspace(1).min_det(xn + h * cand)[0] > 0:
                             continue
                         widen(cand)
-                        if ipctk.compute_collision_free_stepsize(loc.mesh, loc.vertices(xc[0, nodes], Cs0),
+                        if _ccd(loc.mesh, loc.vertices(xc[0, nodes], Cs0),
                                                                  loc.vertices(xo_n + h * cand[0, nodes], Cs1)) >= 1:
                             found = cand
                             break
@@ -690,7 +700,7 @@ class ImplicitEuler:
                     widen(vt)
                 # converged: the full Newton step (not the line search's fraction of it, which CCD may cut) moves no
                 # node by tol_m; it is taken when CCD allows it whole, else the search below bounds it as any other
-                t = min(1.0, float(ipctk.compute_collision_free_stepsize(loc.mesh, V, verts(vt))))
+                t = min(1.0, float(_ccd(loc.mesh, V, verts(vt))))
                 done = h * size < tol_m
                 slope = float((d * r).sum())
                 while True:

@@ -257,7 +257,10 @@ class ImplicitEuler:
     Every line search starts at ipctk's collision-free step size (CCD, TightInclusion) toward the Newton step, so no
     iterate intersects; κ̃ is ipctk's ``initial_barrier_stiffness`` at the step's first guess and
     ``update_barrier_stiffness`` (on squared distances, ipctk's convention) after each
-    iteration.
+    iteration. The first guess is reached from x_n without crossing a collider and inverts no tet; where none of the
+    candidates is (an object carried by its bone into a fixed collider faster than a step), the step's minimiser is
+    reached by continuation in the attached nodes' targets and the colliders' poses (``contact_rounds`` counts its
+    rounds). The CCD is TightInclusion at :data:`kdfaces.defaults.CCD_TOLERANCE`.
     """
 
     @renamed_kwargs(h="step_s", tol="tol_m")

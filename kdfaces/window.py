@@ -20,13 +20,12 @@ avatar gets the window of its face cut out alone (the body outside follows x_K e
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import lambertw
 
-from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, THREADS, default_step
+from .defaults import EPSILON_FRACTION, MAX_STEPS, MAX_WINDOW_STEPS, SCAN_COST, default_step
 from .deprecation import renamed_attribute, renamed_kwargs
 from .errors import KDInputError
 from .motion.trajectory import restrict_trajectory, scan_trajectory
@@ -153,23 +152,6 @@ def check_scan(samples: int, vertices: int, max_steps: float | None, *, what: st
 
 
 @renamed_kwargs(h="step_s", epsilon="epsilon_m")
-def _acceleration_max(source, t: np.ndarray, threads: int, chunk: int = 32) -> float:
-    """max over ``t`` (T,) [s] and the vertices of ‖ẍ_K‖ [m/s²] of ``source``, scanned in chunks of ``chunk`` times
-    (a one-off pass: the sample cache is kept for KD) split over ``threads`` threads (the blend's products release
-    the GIL). A sample is the same bits however the times are chunked, and a maximum does not depend on the order
-    it is taken in, so the result is the same for every thread count."""
-    starts = range(0, len(t), chunk)
-
-    def part(lo: int) -> float:
-        acc = scan_trajectory(source, t[lo:lo + chunk], 2)[2]
-        return float(np.sqrt((acc**2).sum(axis=-1)).max())
-
-    if threads <= 1 or len(starts) <= 1:
-        return max((part(lo) for lo in starts), default=0.0)
-    with ThreadPoolExecutor(min(threads, len(starts))) as pool:
-        return max(pool.map(part, starts), default=0.0)
-
-
 def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon_m: float | None = None,
                      times=None, max_steps: float | None = MAX_STEPS) -> WindowEstimate:
     """The automatic KD window of ``system`` on ``trajectory``.
@@ -199,8 +181,11 @@ def automatic_window(system, trajectory, *, step_s: float | None = None, epsilon
     n_vertices = int(getattr(model, "num_vertices", np.size(model.kp)))
     check_scan(grid_size(trajectory, h) if times is None else np.size(times), n_vertices, max_steps)
     t = grid_times(trajectory, h) if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
+    acc_max = 0.0
     source = restrict_trajectory(trajectory, region)  # §5.2's ẍ_max over the simulated (face) vertices only
-    acc_max = _acceleration_max(source, t, int(getattr(system, "threads", None) or THREADS))
+    for i in range(0, len(t), 32):
+        acc = scan_trajectory(source, t[i:i + 32], 2)[2]  # a one-off pass: keep the sample cache for KD
+        acc_max = max(acc_max, float(np.sqrt((acc**2).sum(axis=-1)).max()))
     v0 = acc_max * h
     kp, kd = model.kp, model.kd
     if region is not None and np.ndim(kp) and np.ndim(kd):

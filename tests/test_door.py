@@ -72,7 +72,7 @@ def test_the_lintel_is_hit_before_and_never_touched_after(door):
     for d in (c["lintel_min_distance_kd_m"], c["lintel_min_distance_full_m"]):
         assert d >= clearance  # the contact surface lies below the render surface's top
         assert abs(d - (clearance + offset)) <= 0.2 * offset
-    assert c["cost_ratio"] > 0 and c["cost_ratio_head"] > 0
+    assert c["wall_ratio_with_to_without"] > 0 and c["wall_ratio_head_to_without"] > 0
     # the head alone never comes within reach: the KD and IKD system's states are the collider-free ones, bit for
     # bit; with the lintel, steps near it take ipctk's path with a zero barrier, which changes only round-off of
     # the Newton solves (tolerance 1e-6 m per update)

@@ -515,8 +515,8 @@ def _contact_summary(scene: DoorScene, fresh, corrected, pass_s, pass_t, X_befor
         "touch_free": bool(clear(rep_full["lintel"]) and clear(rep_after["lintel"])),
         "dhat_m": dhat,
         "ms_per_state_with": 1e3 * timing["with"], "ms_per_state_without": 1e3 * timing["without"],
-        "cost_ratio": timing["with"] / timing["without"],
-        "cost_ratio_head": timing["head"] / timing["without"],
+        "wall_ratio_with_to_without": timing["with"] / timing["without"],
+        "wall_ratio_head_to_without": timing["head"] / timing["without"],
         "cost_states_same_as_without": bool(np.array_equal(states["with"], states["without"])),
         # the contact path with a zero barrier (steps the broad phase cannot clear) changes round-off only
         "cost_states_max_difference_m": float(np.abs(states["with"] - states["without"]).max()),

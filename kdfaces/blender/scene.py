@@ -201,23 +201,8 @@ def _topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _action_fcurves(id_data):
-    """{data_path: fcurve} of ``id_data``'s action (legacy or slotted/layered actions)."""
-    ad = getattr(id_data, "animation_data", None)
-    action = None if ad is None else ad.action
-    if action is None:
-        return {}
-    curves = None
-    slot = getattr(ad, "action_slot", None)
-    layers = getattr(action, "layers", None)
-    if layers and slot is not None:
-        for layer in layers:
-            for strip in layer.strips:
-                bag = strip.channelbag(slot) if hasattr(strip, "channelbag") else None
-                if bag is not None:
-                    curves = list(bag.fcurves)
-    if curves is None:
-        curves = list(getattr(action, "fcurves", ()))
-    return {fc.data_path: fc for fc in curves if fc.array_index == 0}
+    """{data_path: fcurve} of ``id_data``'s action (legacy or slotted/layered actions; :func:`_fcurve_list`)."""
+    return {fc.data_path: fc for fc in _fcurve_list(id_data) if fc.array_index == 0}
 
 
 _TRANSFORM_PATHS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",

@@ -70,17 +70,37 @@ def merge_rows(path: Path, results: list[dict]) -> list[str]:
     return out
 
 
-def write_markdown(path: Path, results: list[dict], *, rows: list[str] | None = None) -> None:
-    lines = [
+_TABLE = ["| benchmark | size | median [s] | rate | unit |", "|---|---|---:|---:|---|"]
+
+
+def update_header(path: Path, results: list[dict]) -> list[str]:
+    """The header of ``path`` (the lines above its table) with one line saying when and on what machine the
+    benchmarks of ``results`` were re-measured (replacing an earlier such line for the same names): the machine
+    line above stays the one the rest of the table was measured on."""
+    names = ", ".join(sorted({r["name"] for r in results}))
+    tag = f"Re-measured with `--update` ({names}):"
+    head = []
+    for line in path.read_text().splitlines():
+        if line.startswith("| benchmark"):
+            break
+        if not line.startswith(tag):
+            head.append(line)
+    while head and not head[-1].strip():
+        head.pop()
+    return head + [f"{tag} {datetime.date.today().isoformat()}, {machine()}.", ""]
+
+
+def write_markdown(path: Path, results: list[dict], *, rows: list[str] | None = None,
+                   header: list[str] | None = None) -> None:
+    lines = header if header is not None else [
         "# Benchmarks",
         "",
         f"Written by `python scripts/bench.py` on {datetime.date.today().isoformat()}.",
         f"Machine: {machine()}.",
         "Medians over repeats; compare ratios within one run (the machine is shared and noisy).",
         "",
-        "| benchmark | size | median [s] | rate | unit |",
-        "|---|---|---:|---:|---|",
     ]
+    lines = lines + _TABLE
     lines += rows if rows is not None else [_row(r) for r in results]
     tmp = path.with_suffix(".tmp")
     tmp.write_text("\n".join(lines) + "\n")
@@ -113,7 +133,8 @@ def main(argv=None) -> int:
     if not args.only:
         write_markdown(args.out, results)
     elif args.update and args.out.exists():
-        write_markdown(args.out, results, rows=merge_rows(args.out, results))
+        write_markdown(args.out, results, rows=merge_rows(args.out, results),
+                       header=update_header(args.out, results))
     return 0
 
 

@@ -152,41 +152,22 @@ def hold_markers(obj, scene) -> list:
 
 
 def _keyed_frames(ob) -> list[float]:
-    ad = ob.animation_data
-    act = None if ad is None else ad.action
-    if act is None:
-        return []
-    frames = set()
-    for fc in _fcurves(act, ad):
-        frames.update(float(k.co[0]) for k in fc.keyframe_points)
-    return sorted(frames)
+    """The scene frames of the Empty's keyframes (its own action's F-curves, read as
+    :func:`kdfaces.blender.scene._fcurve_list` reads them: the channel bag of the Empty's slot in a Blender 4.4+
+    layered action, which may hold other objects' slots too, or a legacy action's F-curves), sorted."""
+    from .scene import _fcurve_list
 
-
-def _fcurves(action, animation_data=None):
-    """The F-curves of an action: Blender 4.4+ layered actions (their channel bag for the slot in use) or the
-    legacy ``action.fcurves``."""
-    legacy = getattr(action, "fcurves", None)
-    if legacy is not None and len(legacy):
-        return list(legacy)
-    out = []
-    slot = getattr(animation_data, "action_slot", None) if animation_data is not None else None
-    for layer in getattr(action, "layers", ()):
-        for strip in layer.strips:
-            bags = getattr(strip, "channelbags", ())
-            for bag in bags:
-                if slot is None or getattr(bag, "slot", None) in (None, slot):
-                    out.extend(bag.fcurves)
-    return out
+    return sorted({float(k.co[0]) for fc in _fcurve_list(ob) for k in fc.keyframe_points})
 
 
 def _location_at(ob, frame: float) -> np.ndarray:
     """The Empty's ``location`` at scene ``frame`` (its F-curves evaluated there; unkeyed channels as they are)."""
+    from .scene import _fcurve_list
+
     loc = np.array(ob.location, dtype=np.float64)
-    ad = ob.animation_data
-    if ad is not None and ad.action is not None:
-        for fc in _fcurves(ad.action, ad):
-            if fc.data_path == "location" and 0 <= fc.array_index < 3:
-                loc[fc.array_index] = fc.evaluate(frame)
+    for fc in _fcurve_list(ob):
+        if fc.data_path == "location" and 0 <= fc.array_index < 3:
+            loc[fc.array_index] = fc.evaluate(frame)
     return loc
 
 

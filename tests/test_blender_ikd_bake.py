@@ -9,10 +9,12 @@ Ctrl+P › Vertex Parent does: the parent inverse keeps it in place), 2 mm / 4 m
 Session A (a ``bpy`` subprocess with a fresh user config; importing bpy is process-global, see
 tests/fbx_fixtures.py) reads the constraints, solves IKD with the operator, shows frames 16 and 26 with the live KD
 (:func:`kdfaces.blender.scene.apply_kd`) and measures the mesh Blender evaluates; moves the Empty 3 mm and solves
-again (warm), then once cold; bakes with Esc pressed (a cancel callback): no file, the scene unchanged; bakes to
+again (warm), then once cold; bakes with Esc pressed (a cancel callback): no file, the scene unchanged; presses Esc
+in the modal Bake operator (its own invoke and modal, a worker thread, TIMER and ESC events: the same); bakes to
 PC2 (Mesh Cache modifier) and compares the evaluated mesh with the PC2's frames; bakes USD with the operator;
 writes the shot file with the operator; sets a scene's fps and range from shots (25 and 29.97 fps); runs Solve IKD
-on a mesh without shape keys and on one without constraints (one error each, the scene unchanged); saves the .blend.
+on a mesh without shape keys and on one without constraints (one error each, the scene unchanged); reads the
+constraint frames of two Empties keyed in one layered action (a slot each); saves the .blend.
 Session B reopens the .blend in a second subprocess and renders frame 16 with Workbench to a PNG. Here, the bake's
 PC2 is compared byte for byte with ``kdfaces run --export pc2`` (:func:`~kdfaces.shots.run_shot` with the writers
 of ``open_run_exports``, what the command does) on the exported shot file.
@@ -43,7 +45,7 @@ TOL_M = defaults.TOLERANCE_M
 FLOAT32_M = 1e-6  # Blender's float32 coordinates and KD key at head scale (see the module docstring)
 
 _SESSION_A = r'''
-import json, os, sys, time
+import json, os, sys, threading, time
 from pathlib import Path
 
 import bpy
@@ -208,6 +210,74 @@ R["cancel_files"] = sorted(p.name for p in out.iterdir())
 R["cancel_scene_same"] = ([m.name for m in ob.modifiers] == mods
                           and np.array_equal(ikd.object_correction(ob).values, stored))
 
+
+# Esc through the modal operator. A background Blender runs an operator's execute even for INVOKE_DEFAULT and
+# delivers no events, so the class's own invoke and modal run here on a stand-in for the instance Blender makes
+# (the operator's properties, its report), with the real scene, a real worker thread and Blender's real timers,
+# fed the events a window would send: TIMER while the worker runs, ESC, then TIMER until the operator ends.
+class OperatorInstance:
+    invoke, modal, _path = bake.KDFACES_OT_bake.invoke, bake.KDFACES_OT_bake.modal, bake.KDFACES_OT_bake._path
+
+    def __init__(self, filepath, kind):
+        self.filepath, self.kind, self.reports = filepath, kind, []
+
+    def report(self, level, message):
+        self.reports.append([sorted(level), message])
+
+
+class WindowManager:
+    """Blender's window manager for timers; records the timers and the modal handler the operator adds."""
+
+    def __init__(self, wm):
+        self.wm, self.added, self.removed, self.handlers = wm, [], [], []
+
+    def event_timer_add(self, step, window=None):
+        t = self.wm.event_timer_add(step, window=window)
+        self.added.append(t)
+        return t
+
+    def event_timer_remove(self, timer):
+        self.removed.append(timer)
+        self.wm.event_timer_remove(timer)
+
+    def modal_handler_add(self, operator):
+        self.handlers.append(operator)
+        return True
+
+
+class Event:
+    def __init__(self, type, value="PRESS"):
+        self.type, self.value = type, value
+
+
+esc_dir = out / "esc_operator"
+esc_dir.mkdir()
+token = ob["kd_ikd"]["token"]
+op, wm = OperatorInstance(str(esc_dir / "esc.pc2"), "pc2"), WindowManager(bpy.context.window_manager)
+ctx = type("Context", (), {"active_object": ob, "scene": sc, "window": bpy.context.window, "window_manager": wm})()
+threads = set(threading.enumerate())
+E = {"invoke": sorted(op.invoke(ctx, Event("LEFTMOUSE")))}
+workers = [t for t in threading.enumerate() if t not in threads]
+E["timer_running"] = sorted(op.modal(ctx, Event("TIMER")))
+E["workers_alive_after_timer"] = [t.is_alive() for t in workers]  # alive after the call: running during it
+E["esc"] = sorted(op.modal(ctx, Event("ESC")))
+deadline, ticks = time.perf_counter() + 300.0, 0
+while True:  # the 0.2 s timer's events, until the worker has ended
+    r = op.modal(ctx, Event("TIMER"))
+    if r != {"RUNNING_MODAL"} or time.perf_counter() > deadline:
+        break
+    ticks += 1
+    time.sleep(0.05)
+E["end"], E["ticks"] = sorted(r), ticks
+E["workers_alive_at_end"] = [t.is_alive() for t in workers]
+E["reports"] = op.reports
+E["files"] = sorted(os.listdir(esc_dir))  # hidden names too: the writer's temporary file is ".esc.*.pc2"
+E["handlers"] = len(wm.handlers) == 1 and wm.handlers[0] is op
+E["timers"] = [len(wm.added), len(wm.removed), wm.added == wm.removed]
+E["modifiers_same"] = [m.name for m in ob.modifiers] == mods
+E["correction_same"] = ob["kd_ikd"]["token"] == token and np.array_equal(ikd.object_correction(ob).values, stored)
+R["esc_operator"] = E
+
 t = time.perf_counter()
 path, run = bake.bake_object(ob, sc, out / "face.pc2")
 R["bake_s"] = time.perf_counter() - t
@@ -267,6 +337,31 @@ except RuntimeError as e:
 bad["none_kept_correction"] = np.array_equal(ikd.object_correction(ob).values, kept)
 R["bad"] = bad
 bpy.data.objects.remove(plain)
+
+# two Empties keyed in one layered action, each in its own slot: each constraint's frames are its own keys
+tri = bpy.data.objects.new("tri", bpy.data.meshes.new("tri"))
+tri.data.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+sc.collection.objects.link(tri)
+shared = {}
+for name, frames in (("slot_a", (3, 9)), ("slot_b", (5, 12, 20))):
+    e = bpy.data.objects.new(name, None)
+    sc.collection.objects.link(e)
+    e.parent, e.parent_type, e.parent_vertices = tri, "VERTEX", (1, 0, 0)
+    if shared:  # the first Empty's action, then a key: Blender adds this Empty's slot to it
+        e.animation_data_create()
+        e.animation_data.action = shared["action"]
+    for f in frames:
+        e.location = (0.0, 0.0, 0.001 * f)
+        e.keyframe_insert("location", frame=f)
+    shared.setdefault("action", e.animation_data.action)
+act = shared["action"]
+R["shared_action"] = {"slots": [s.identifier for s in act.slots],
+                      "same_action": bpy.data.objects["slot_b"].animation_data.action == act,
+                      "tables": [[t["label"], t["time_s"], t["target"]["offset_m"]]
+                                 for t in ikd.constraint_tables(tri, sc)]}
+for name in ("slot_a", "slot_b", "tri"):
+    bpy.data.objects.remove(bpy.data.objects[name])
+bpy.data.actions.remove(act)
 bpy.data.scenes.remove(s2)
 sc.frame_set(16)
 bpy.ops.wm.save_as_mainfile(filepath=str(out / "scene.blend"))
@@ -417,6 +512,33 @@ def test_esc_during_a_bake_leaves_nothing(sessions):
     assert "cancelled" in a["cancel"] and "nothing was written" in a["cancel"]
     assert not any("cancelled" in name for name in a["cancel_files"]), a["cancel_files"]
     assert a["cancel_scene_same"]
+
+
+def test_esc_through_the_modal_bake_operator(sessions):
+    _, a, _ = sessions
+    e = a["esc_operator"]
+    assert e["invoke"] == ["RUNNING_MODAL"] and e["handlers"], e
+    assert e["timer_running"] == ["RUNNING_MODAL"] and e["workers_alive_after_timer"] == [True], e  # while it runs
+    assert e["esc"] == ["RUNNING_MODAL"], e  # Esc asks the worker to stop; the operator waits for it
+    assert e["end"] == ["CANCELLED"] and e["workers_alive_at_end"] == [False] and e["ticks"] >= 1, e
+    assert e["reports"] == [[["WARNING"], "bake cancelled; nothing was written"]], e
+    assert e["files"] == [], e  # neither esc.pc2 nor the writer's temporary file
+    assert e["timers"] == [1, 1, True], e  # the operator's one timer, removed when it ended
+    assert e["modifiers_same"] and e["correction_same"], e
+
+
+def test_constraint_frames_from_a_shared_layered_action(sessions):
+    _, a, _ = sessions
+    s = a["shared_action"]
+    assert s["slots"] == ["OBslot_a", "OBslot_b"] and s["same_action"], s
+    # one constraint per keyed frame of each Empty's own slot (not the action's first slot), its offset as keyed
+    # there: (0, 0, 0.001 f) in Blender's axes is (0, 0.001 f, 0) in the rig's, float32 keys (rel 1e-7)
+    want = [[f"slot_a@{f}", (f - 1) / 25, [0.0, 0.001 * f, 0.0]] for f in (3, 9)] + \
+           [[f"slot_b@{f}", (f - 1) / 25, [0.0, 0.001 * f, 0.0]] for f in (5, 12, 20)]
+    assert [t[0] for t in s["tables"]] == [w[0] for w in want], s
+    for (_, t, off), (_, wt, woff) in zip(s["tables"], want):
+        assert t == pytest.approx(wt, rel=1e-12)
+        np.testing.assert_allclose(off, woff, rtol=1e-6, atol=1e-12)
 
 
 def test_bake_equals_kdfaces_run_on_the_exported_shot_file(sessions, tmp_path):

@@ -11,6 +11,9 @@
 - ``proxy_accuracy`` [ε]: max over every frame of the demo and every vertex of |x_proxy − x_dense| in units of ε
   (the dense model's, 0.1 % of its diameter), and the 99th percentile over vertices of each vertex's max; 19k with
   the 6k proxy, 75k with the auto proxy (the dense 75k reference is every frame too, ~2 min).
+
+The ``face_kd_state`` rows are keyed by their size prefixes (``ROW_KEYS``), so ``scripts/bench.py --update`` of
+either this module or ``bench_face_kd.py`` replaces only its own rows of that name.
 """
 
 from __future__ import annotations
@@ -126,5 +129,10 @@ def bench_proxy_accuracy(repeats: int) -> list[dict]:
                     "unit": "ε"})
     return out
 
+
+#: The proxy's ``face_kd_state`` rows are their own configurations among ``bench_face_kd.py``'s dense rows of that
+#: name: ``scripts/bench.py --only proxy_state --update`` replaces these rows only, and the dense benchmark's
+#: ``--update`` leaves them in place.
+ROW_KEYS = {"face_kd_state": ["75k vertices, proxy", "19k vertices, proxy"]}
 
 BENCHMARKS = [("proxy_state", bench_proxy_state), ("proxy_accuracy", bench_proxy_accuracy)]

@@ -1,6 +1,7 @@
 """Production-size rigs: loading an OBJ folder (the 19k-vertex centimetre rig of ``scripts/build_production_rig.py``
 × 53 shapes), and the peak resident memory of baking a 10 s, 30 Hz stretch of the real Live Link Face capture on the
-19k and 27k rigs with ``kdfaces run`` (a fresh process each, so the peak is the bake's own)."""
+19k and 27k rigs with ``kdfaces run`` (a fresh process each, so the peak is the bake's own), and the viewer's frame
+rate on that capture: the 27k rig (dense) and the default head Loop-subdivided twice (75k vertices, on its proxy)."""
 
 from __future__ import annotations
 
@@ -92,33 +93,30 @@ def bench_bake_peak_memory(repeats: int):
     return out
 
 
-def bench_viewer_fps(repeats: int):
-    """``kdfaces view`` on the 27k rig (two threads, off-screen, the shot's automatic window): frames per second of
-    the KD states alone (``last_ms``) and of whole viewer updates (KD state + redraw, software OpenGL here), while
-    stepping through 60 consecutive frames of the capture."""
-    if not TAKE.exists():
-        return [{"name": f"viewer_fps skipped (capture not present at {TAKE})", "size": "-",
-                 "median_s": float("nan"), "rate": None, "unit": "-"}]
+def _viewer_rows(rig, tmp: Path, repeats: int, label) -> list[dict]:
+    """``viewer_fps`` rows of :class:`~kdfaces.viz.viewer.ShotViewer` on ``rig`` (a rig path, or a loaded rig) over
+    the capture's 10 s stretch (``BAKE_SHOT``), two threads, off-screen 960×720: the KD state alone (``last_ms``)
+    and the whole update (KD + redraw) of each of 60 consecutive frames; ``label(viewer)`` begins the rows' size."""
     from kdfaces.shots.shotfile import load_shot
     from kdfaces.viz.viewer import ShotViewer
 
-    with tempfile.TemporaryDirectory() as tmp:
-        info = _builder()(Path(tmp) / "rig", target_vertices=27_000)
-        path = Path(tmp) / "view.toml"
-        path.write_text(BAKE_SHOT.format(rig=Path(tmp) / "rig", take=TAKE))
-        viewer = ShotViewer(load_shot(path, cache_dir=Path(tmp) / "cache"), off_screen=True, threads=2)
-        try:
-            kd_ms, update_s = [], []
-            for _ in range(max(1, repeats)):
-                viewer.set_frame(0)
-                for _ in range(60):
-                    t0 = time.perf_counter()
-                    viewer.step_frame(1)
-                    update_s.append(time.perf_counter() - t0)
-                    kd_ms.append(viewer.last_ms)
-        finally:
-            viewer.close()
-    size = f"{info['vertices'] / 1e3:.1f}k vertices, 2 threads, δ = {viewer.window_s:.3f} s, 960×720 off-screen"
+    path = tmp / "view.toml"
+    path.write_text(BAKE_SHOT.format(rig=rig if isinstance(rig, Path) else "unused", take=TAKE))
+    shot = load_shot(path, cache_dir=tmp / "cache", rig=None if isinstance(rig, Path) else rig)
+    viewer = ShotViewer(shot, off_screen=True, threads=2)
+    try:
+        head = label(viewer)
+        kd_ms, update_s = [], []
+        for _ in range(max(1, repeats)):
+            viewer.set_frame(0)
+            for _ in range(60):
+                t0 = time.perf_counter()
+                viewer.step_frame(1)
+                update_s.append(time.perf_counter() - t0)
+                kd_ms.append(viewer.last_ms)
+    finally:
+        viewer.close()
+    size = f"{head}, 2 threads, δ = {viewer.window_s:.3f} s, 960×720 off-screen"
     kd_s = statistics.median(kd_ms) / 1e3
     upd = statistics.median(update_s)
     return [{"name": "viewer_fps", "size": size + ", KD state alone", "median_s": kd_s, "rate": 1.0 / kd_s,
@@ -127,6 +125,47 @@ def bench_viewer_fps(repeats: int):
              "unit": "frames/s"}]
 
 
+def _skipped(name: str) -> list[dict]:
+    return [{"name": f"{name} skipped (capture not present at {TAKE})", "size": "-", "median_s": float("nan"),
+             "rate": None, "unit": "-"}]
+
+
+def bench_viewer_fps(repeats: int):
+    """``kdfaces view`` on the 27k rig (two threads, off-screen, the shot's automatic window): frames per second of
+    the KD states alone (``last_ms``) and of whole viewer updates (KD state + redraw, software OpenGL here), while
+    stepping through 60 consecutive frames of the capture."""
+    if not TAKE.exists():
+        return _skipped("viewer_fps")
+    with tempfile.TemporaryDirectory() as tmp:
+        info = _builder()(Path(tmp) / "rig", target_vertices=27_000)
+        return _viewer_rows(Path(tmp) / "rig", Path(tmp), repeats, lambda v: f"{info['vertices'] / 1e3:.1f}k vertices")
+
+
+def bench_viewer_fps_75k(repeats: int):
+    """The viewer as :func:`bench_viewer_fps` (the same capture stretch, dynamics, threads and window size) on the
+    default head Loop-subdivided twice (75,571 vertices), whose face model is a proxy (``FaceModel.from_rig(rig,
+    proxy="auto")``, the shot's default, as ``bench_proxy.py``): the dense mesh is drawn, the proxy simulated."""
+    if not TAKE.exists():
+        return _skipped("viewer_fps")
+    from kdfaces import load_default_rig
+    from kdfaces.rig import subdivide_rig
+
+    def label(viewer) -> str:
+        model = viewer.system.model
+        if not model.proxy:
+            raise RuntimeError(f"viewer_fps_75k: expected a proxy face model on {model.num_vertices} vertices")
+        return f"75k vertices, proxy ({model.num_simulated} proxy vertices)"
+
+    rig = subdivide_rig(load_default_rig(), 2)
+    with tempfile.TemporaryDirectory() as tmp:
+        return _viewer_rows(rig, Path(tmp), repeats, label)
+
+
+#: ``viewer_fps`` rows of the 75k proxy face are their own configuration (``scripts/bench.py --update``): updating
+#: one of the two viewer benchmarks leaves the other's rows in place.
+ROW_KEYS = {"viewer_fps": ["75k vertices, proxy"]}
+
 BENCHMARKS = [("production_obj_folder_load", bench_obj_folder_load),
               ("production_bake_peak_rss", bench_bake_peak_memory),
-              ("viewer_fps", bench_viewer_fps)]
+              ("viewer_fps", bench_viewer_fps),
+              ("viewer_fps_75k", bench_viewer_fps_75k)]

@@ -5,7 +5,9 @@ file itself is :mod:`kdfaces.blender.shot`):
 
 - :func:`bake_shot`: :func:`~kdfaces.shots.run_shot` of a shot with its final trajectory streamed chunk by chunk
   into a point-cache writer (:func:`~kdfaces.io.export.open_export`), exactly as ``kdfaces run --export`` streams
-  it: a PC2 bake of the shot is the same bytes as ``kdfaces run --export pc2`` of the shot file. ``cancel()`` is
+  it: a PC2 bake of the shot is the same bytes as ``kdfaces run --export pc2`` of the shot file (for a welded
+  Blender mesh, :mod:`kdfaces.blender.scene`, the bake stores the mesh's vertices: that command's float32 points
+  gathered through the weld, the header's point count the mesh's). ``cancel()`` is
   asked before each chunk is written; when it says so the writer is discarded (no partial file) and
   :class:`BakeCancelled` is raised.
 - Blender: :func:`bake_object` (bake, then
@@ -26,7 +28,15 @@ from pathlib import Path
 
 from kdfaces.errors import KDInputError
 
-from .shot import RIG_SUFFIX, Cancelled, object_dynamics, object_shot, object_shot_settings, write_shot_file
+from .shot import (
+    RIG_SUFFIX,
+    Cancelled,
+    object_dynamics,
+    object_shot,
+    object_shot_settings,
+    rig_constraint_tables,
+    write_shot_file,
+)
 
 __all__ = ["BakeCancelled", "bake_shot", "mesh_cache_frame_start", "bake_object", "setup_mesh_cache",
            "export_object_shot", "set_scene_from_shot", "BAKE_KINDS", "CLASSES"]
@@ -41,22 +51,33 @@ class BakeCancelled(Cancelled):
 
 # --- library: bakes -----------------------------------------------------------------------------------------------
 
-def bake_shot(shot, path, *, kind: str = "pc2", cancel=None, unit_m: float = 1.0, **run_options):
+def bake_shot(shot, path, *, kind: str = "pc2", cancel=None, unit_m: float = 1.0, vertex_map=None, **run_options):
     """Run ``shot`` (:func:`~kdfaces.shots.run_shot`: KD of every frame, IKD for its constraints) and stream its
     final trajectory into the point cache ``path`` (``kind`` ``"pc2"``, ``"usd"`` or ``"usda"``; lengths in units of
     ``unit_m`` metres). The writer is the one ``kdfaces run --export`` opens, with the same arguments, and it
     receives the same chunks: a PC2 bake is byte for byte that command's PC2 of the same shot file.
+
+    ``vertex_map``: for a PC2, the rig vertex of each vertex of the mesh the cache is for (M,) (a welded Blender
+    mesh: :attr:`kdfaces.blender.scene.ObjectEntry.weld`): the file then stores ``positions[:, vertex_map]``, the
+    mesh's M points in its order (:class:`~kdfaces.io.pointcache.PC2Writer`'s ``vertex_map``), so its float32
+    values are those of ``kdfaces run --export pc2`` gathered through the same map and its header differs only in
+    the point count. USD bakes hold the rig's own mesh (its vertices and faces) and ignore it.
 
     ``cancel``: a callable asked before each chunk is written; when it returns True the bake stops, the writer
     discards its temporary file (nothing appears at ``path``) and :class:`BakeCancelled` is raised.
     ``run_options`` go to :func:`~kdfaces.shots.run_shot`. Returns ``(path, run)``.
     """
     from kdfaces.io.export import open_export
+    from kdfaces.io.pointcache import PC2Writer
     from kdfaces.shots.run import run_shot
 
     a = shot.animation
-    writer = open_export(Path(path), a.frame_times, kind=kind, num_vertices=shot.rig.num_vertices, rig=shot.rig,
-                         fps=a.fps, name=shot.name, unit_m=unit_m)
+    if kind == "pc2" and vertex_map is not None:  # the mesh's vertices: the same writer, gathering each block
+        writer = PC2Writer(Path(path), a.frame_times, num_vertices=shot.rig.num_vertices, fps=a.fps, unit_m=unit_m,
+                           vertex_map=vertex_map)
+    else:
+        writer = open_export(Path(path), a.frame_times, kind=kind, num_vertices=shot.rig.num_vertices, rig=shot.rig,
+                             fps=a.fps, name=shot.name, unit_m=unit_m)
 
     def sink(lo, hi, x):
         if cancel is not None and cancel():
@@ -83,13 +104,17 @@ def mesh_cache_frame_start(scene_start_frame: int) -> float:
 
 def export_object_shot(obj, scene, path) -> Path:
     """"Export shot file": write ``path`` (``.toml``) and ``<stem>_rig.npz`` for ``obj`` (see
-    :func:`write_shot_file`); ``kdfaces run PATH --export pc2`` then writes what :func:`bake_object` writes."""
+    :func:`write_shot_file`); ``kdfaces run PATH --export pc2`` then writes what :func:`bake_object` writes (for a
+    welded mesh, on the rig's vertices: the bake's PC2 is that cache gathered through
+    :attr:`~kdfaces.blender.scene.ObjectEntry.weld`). The constraints name rig vertices
+    (:func:`~kdfaces.blender.shot.rig_constraint_tables`)."""
     from .ikd import constraint_tables
     from .scene import object_animation, object_rig
 
     p = Path(path)
+    tables = rig_constraint_tables(obj, scene, constraint_tables(obj, scene))
     return write_shot_file(p, object_rig(obj, scene), object_animation(obj, scene),
-                           dynamics=object_dynamics(obj, scene), constraints=constraint_tables(obj, scene), name=p.stem)
+                           dynamics=object_dynamics(obj, scene), constraints=tables, name=p.stem)
 
 
 def setup_mesh_cache(obj, scene, path, *, name: str = "KD cache"):
@@ -118,12 +143,14 @@ def setup_mesh_cache(obj, scene, path, *, name: str = "KD cache"):
 def bake_object(obj, scene, path, *, kind: str = "pc2", cancel=None, modifier: bool = True):
     """Bake ``obj``'s KD (and IKD, when it has constraints) over the scene's range to the point cache ``path``:
     :func:`bake_shot` of :func:`object_shot` (so the PC2 is byte for byte ``kdfaces run --export pc2`` of the
-    exported shot file), in metres (scene unit scale 1) or Blender units. With a PC2 and ``modifier``, the object
+    exported shot file; a welded mesh's PC2 holds the mesh's vertices, that command's float32 points gathered
+    through :attr:`~kdfaces.blender.scene.ObjectEntry.weld`, so it drives the mesh Blender has), in metres (scene
+    unit scale 1) or Blender units. With a PC2 and ``modifier``, the object
     gets a Mesh Cache modifier playing it (:func:`setup_mesh_cache`); the run's IKD correction is stored with the
     object. ``cancel()`` (Esc) is asked before each chunk: then :class:`BakeCancelled` is raised, no file is left
     and the scene is as it was. Returns ``(path, run)``."""
     from .ikd import constraint_tables, constraints_key, store_correction
-    from .scene import scene_unit_m
+    from .scene import object_entry, scene_unit_m
 
     if kind not in BAKE_KINDS:
         raise KDInputError(f"bake kind {kind!r}: expected one of {list(BAKE_KINDS)}")
@@ -131,7 +158,8 @@ def bake_object(obj, scene, path, *, kind: str = "pc2", cancel=None, modifier: b
     shot = object_shot(obj, scene, tables)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    written, run = bake_shot(shot, p, kind=kind, cancel=cancel, unit_m=scene_unit_m(scene))
+    written, run = bake_shot(shot, p, kind=kind, cancel=cancel, unit_m=scene_unit_m(scene),
+                             vertex_map=object_entry(obj, scene).weld)
     if run.ikd_result is not None:
         r = run.ikd_result
         store_correction(obj, r.correction, key=constraints_key(tables, object_shot_settings(obj, scene)),
@@ -215,16 +243,18 @@ if bpy is not None:
             except Exception as e:  # noqa: BLE001
                 self.report({"ERROR"}, _one_line(e))
                 return {"CANCELLED"}
-            from .scene import scene_unit_m
+            from .scene import object_entry, scene_unit_m
 
             self._obj_name, self._path_out = obj.name, path
             self._cancel = threading.Event()
             self._outcome = {}
             kind, unit_m, shot = str(self.kind), scene_unit_m(scene), self._shot  # no Blender data on the worker
+            weld = object_entry(obj, scene).weld
 
             def work():
                 try:
-                    self._outcome["ok"] = bake_shot(shot, path, kind=kind, cancel=self._cancel.is_set, unit_m=unit_m)
+                    self._outcome["ok"] = bake_shot(shot, path, kind=kind, cancel=self._cancel.is_set, unit_m=unit_m,
+                                                    vertex_map=weld)
                 except BaseException as e:  # noqa: BLE001 - reported on Blender's thread
                     self._outcome["error"] = e
 

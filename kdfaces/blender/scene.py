@@ -13,6 +13,15 @@ Conventions:
 - **Rig.** The reference key ("Basis") is the neutral; every other shape key except the KD key (:data:`KD_KEY`) is
   a blend shape, its delta taken against its own ``relative_key`` as Blender does. Triangles from
   ``loop_triangles``, polygons from ``polygons``/``loops``.
+- **Weld.** Mesh vertices with the same coordinates in the basis and in every shape key (exact float32 equality)
+  and, under an armature, the same vertex-group weights are one rig vertex (:func:`_weld`): the copies an importer
+  makes at UV seams (a glTF from :func:`kdfaces.io.gltf.save_gltf` has the rig's 4,774 vertices and 212 seam
+  copies after them) are one point of the face, not free vertices. The rig is built on the unique vertices (in
+  order of their first mesh vertex; faces remapped), once per rig build; :attr:`ObjectEntry.weld` is the rig
+  vertex of each mesh vertex (None when nothing welds). The KD key is written to every mesh vertex through it
+  (a copy gets exactly its twin's offset), IKD constraints naming mesh vertices name their rig vertices
+  (:func:`kdfaces.blender.shot.rig_constraint_tables`), and a PC2 bake stores the mesh's vertices
+  (:func:`kdfaces.blender.bake.bake_shot`'s ``vertex_map``).
 - **Animation.** Each shape key's weight is its ``value`` fcurve (``key_blocks["NAME"].value`` in the shape keys'
   action) evaluated at every frame of the range, or its constant ``value`` (0 when muted), into a catmull-rom
   :class:`~kdfaces.motion.KeyframeCurve` through those frames: at every frame it is exactly Blender's weight, and
@@ -343,9 +352,11 @@ def _vertex_group_weights(obj, names) -> np.ndarray:
     return W
 
 
-def _armature_skeleton(obj, scene):
+def _armature_skeleton(obj, scene, weights=None):
     """(head-chain :class:`~kdfaces.rig.Skeleton` in the mesh's space [m, kdfaces axes], the chain's bone names
-    (None for added necks)) of the armature deforming ``obj``, or None without one."""
+    (None for added necks)) of the armature deforming ``obj``, or None without one. ``weights``: the (N, J)
+    vertex-group weights of the rig's vertices on the armature's bones (default: :func:`_vertex_group_weights` of
+    every mesh vertex)."""
     from kdfaces.rig.skeleton import head_chain_skeleton
 
     arm = _armature(obj)
@@ -357,7 +368,7 @@ def _armature_skeleton(obj, scene):
     Q = _armature_space(obj, arm)
     heads = np.array([tuple(b.head_local) for b in bones], dtype=np.float64).reshape(-1, 3)
     pivots = to_kd(heads @ Q[:3, :3].T + Q[:3, 3], scene_unit_m(scene))
-    W = _vertex_group_weights(obj, names)
+    W = _vertex_group_weights(obj, names) if weights is None else weights
     sk = head_chain_skeleton(names, parents, pivots, W, where=f"object {obj.name!r} armature {arm.name!r}")
     if sk is None:
         return None
@@ -478,7 +489,21 @@ class ObjectEntry:
     frame_cache: dict = field(default_factory=dict)
     generation: int | None = None
     quick_key: tuple = ()
-    basis_co: np.ndarray | None = None  # (N, 3) float32 Blender coordinates of the basis, as hashed
+    basis_co: np.ndarray | None = None  # (V, 3) float32 Blender coordinates of the basis, as hashed
+    weld: np.ndarray | None = None  # (V,) the rig vertex of each mesh vertex (None: the same vertices, :func:`_weld`)
+
+    def on_mesh(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (..., N, 3) on the rig's vertices → (..., V, 3) on the mesh's: each mesh vertex gets its rig
+        vertex's row (welded copies the same values, bit for bit)."""
+        return x if self.weld is None else np.asarray(x)[..., self.weld, :]
+
+    def rig_vertices(self, indices) -> np.ndarray:
+        """Mesh vertex ``indices`` (G,) → their rig vertices (G,) (copies of one rig vertex stay apart here)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        if len(idx) and (idx.min() < 0 or idx.max() >= (len(self.basis_co) if self.basis_co is not None else 0)):
+            raise KDInputError(f"mesh vertex indices {idx.min()}..{idx.max()}: expected indices in "
+                               f"[0, {0 if self.basis_co is None else len(self.basis_co)})")
+        return idx if self.weld is None else self.weld[idx]
 
     def close(self) -> None:
         if self.system is not None:
@@ -565,20 +590,67 @@ def _anim_hash(obj, scene, shapes) -> bytes:
     return h.digest()
 
 
+def _weld(coords, weights=None) -> np.ndarray | None:
+    """The rig vertex of each mesh vertex (V,), or None when every mesh vertex is its own rig vertex.
+
+    ``coords``: the (V, 3) float32 coordinates of the basis and of every shape key [scene units]; ``weights``: an
+    armature's (V, J) vertex-group weights, or None. Mesh vertices whose coordinates are equal in every key (exact
+    float32 equality, −0 equal to +0) and whose weights are equal are one rig vertex: a UV seam or a split normal
+    makes an importer (Blender's glTF importer among them) copy a vertex, and the copies are one point of the face.
+    Rig vertices are numbered in order of their first mesh vertex, so a mesh without copies keeps its order and a
+    glTF written by :func:`kdfaces.io.gltf.save_gltf` (the rig's vertices first, seam copies after them) welds back
+    to the rig's vertex order. One ``np.unique`` over the rows' bytes, (V, 12·(1 + S) + 8·J) bytes wide."""
+    V = len(coords[0])
+    parts = [(np.ascontiguousarray(c, dtype=np.float32).reshape(V, 3) + np.float32(0.0)).view(np.uint8)
+             for c in coords]  # + 0 turns −0.0 into +0.0, so the bytes compare as the floats do
+    if weights is not None:
+        parts.append((np.ascontiguousarray(weights, dtype=np.float64).reshape(V, -1) + 0.0).view(np.uint8))
+    rows = np.ascontiguousarray(np.concatenate(parts, axis=1))
+    rows = rows.view(np.dtype((np.void, rows.shape[1]))).reshape(V)
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    if len(first) == V:
+        return None
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))  # number the rig vertices by first appearance
+    return rank[inverse.reshape(-1)]
+
+
+def _welded_topology(weld, tri, counts, corners):
+    """Triangles (F', 3), polygon counts (P',) and corners (L',) on the rig's vertices: the mesh's remapped through
+    ``weld`` (:func:`_weld`), without the triangles and polygons whose corners it merges (faces of zero area)."""
+    tri = weld[tri]
+    tri = tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])]
+    corners = weld[corners]
+    poly = np.repeat(np.arange(len(counts)), counts)
+    order = np.lexsort((corners, poly))  # corners sorted within each polygon: a merged pair sits side by side
+    same = (poly[order][1:] == poly[order][:-1]) & (corners[order][1:] == corners[order][:-1])
+    bad = np.zeros(len(counts), dtype=bool)
+    bad[poly[order][1:][same]] = True
+    return tri, counts[~bad], corners[~bad[poly]]
+
+
 def _build_rig(obj, scene, ref, shapes, blocks):
+    """(rig, weld) of the mesh: the :class:`~kdfaces.rig.BlendshapeRig` on the welded vertices (:func:`_weld`) and
+    the rig vertex of each mesh vertex (V,), or None when no vertices weld (the rig's vertices are the mesh's)."""
     from kdfaces.rig import BlendshapeRig
 
     unit = scene_unit_m(scene)
     mesh = obj.data
-    basis = blocks[ref.name].astype(np.float64)
+    arm = _armature(obj)
+    W = _vertex_group_weights(obj, [b.name for b in arm.data.bones]) if arm is not None else None
+    weld = _weld([blocks[ref.name]] + [blocks[kb.name] for kb in shapes], W)
+    keep = slice(None) if weld is None else np.unique(weld, return_index=True)[1]  # the first mesh vertex of each
+    basis = blocks[ref.name][keep].astype(np.float64)
     deltas = np.empty((len(shapes), len(basis), 3), dtype=np.float32)
     for k, kb in enumerate(shapes):
         rel = kb.relative_key.name if kb.relative_key is not None and kb.relative_key.name in blocks else ref.name
-        d = blocks[kb.name].astype(np.float64) - blocks[rel].astype(np.float64)
+        d = blocks[kb.name][keep].astype(np.float64) - blocks[rel][keep].astype(np.float64)
         deltas[k] = to_kd(d, unit)
     tri, counts, corners = _topology(mesh)
+    if weld is not None:
+        tri, counts, corners = _welded_topology(weld, tri, counts, corners)
     skeleton = None
-    chain = _armature_skeleton(obj, scene)
+    chain = _armature_skeleton(obj, scene, None if W is None else W[keep])
     if chain is not None:  # the armature's head chain and the vertex groups' weights
         skeleton = chain[0]
     elif _transform_fcurves(obj):  # the object's keyed transform moves the whole mesh: one "head" joint at its origin
@@ -586,8 +658,9 @@ def _build_rig(obj, scene, ref, shapes, blocks):
 
         skeleton = Skeleton(names=("head",), positions=np.zeros((1, 3)), parents=np.array([-1]),
                             weights=np.ones((len(basis), 1)))
-    return BlendshapeRig.create(to_kd(basis, unit), deltas, tri, [kb.name for kb in shapes], name=obj.name,
-                                polygons=(counts, corners), skeleton=skeleton)
+    rig = BlendshapeRig.create(to_kd(basis, unit), deltas, tri, [kb.name for kb in shapes], name=obj.name,
+                               polygons=(counts, corners), skeleton=skeleton)
+    return rig, weld
 
 
 def _build_animation(obj, scene, shapes):
@@ -681,7 +754,7 @@ def object_entry(obj, scene) -> ObjectEntry:
     anim_key = _anim_hash(obj, scene, shapes)
     new = ObjectEntry() if e is None else ObjectEntry(**{k: getattr(e, k) for k in ObjectEntry.__dataclass_fields__})
     if new.rig_key != rig_key:
-        new.rig, new.model, new.trajectory = _build_rig(obj, scene, ref, shapes, blocks), None, None
+        (new.rig, new.weld), new.model, new.trajectory = _build_rig(obj, scene, ref, shapes, blocks), None, None
         new.rig_key = rig_key
     new.basis_co = blocks[ref.name]
     if new.anim_key != anim_key or new.trajectory is None:
@@ -762,8 +835,9 @@ TRAJECTORY_HOOKS: list = []
 
 @dataclass(frozen=True)
 class KDFrame:
-    """One frame's KD state: ``x_kd``, ``x_k`` (N, 3) [m, kdfaces axes], ``window_s`` δ [s], ``time_s`` [s],
-    ``frame``, ``ms`` the wall time it took [ms], ``deviation_m`` max |x_KD − x_K| [m]."""
+    """One frame's KD state: ``x_kd``, ``x_k`` (N, 3) [m, kdfaces axes] on the rig's vertices (the mesh's through
+    :meth:`ObjectEntry.on_mesh`), ``window_s`` δ [s], ``time_s`` [s], ``frame``, ``ms`` the wall time it took
+    [ms], ``deviation_m`` max |x_KD − x_K| [m]."""
 
     frame: float
     time_s: float
@@ -832,6 +906,8 @@ def apply_kd(obj, scene, frame: float | None = None) -> KDFrame:
         B = (W @ G.reshape(len(G), 9)).T  # (9, N): B_i's entries row by row, one contiguous row each
         B[[0, 4, 8]] += 1.0 - W.sum(axis=1)
         d = _solve3(B, d)
+    if e is not None:  # rig vertices → the mesh's: welded copies get their rig vertex's offset
+        d = e.on_mesh(d)
     offset = from_kd(d, scene_unit_m(scene)).astype(np.float32)
     kb.relative_key = ref
     kb.data.foreach_set("co", (basis + offset).reshape(-1))

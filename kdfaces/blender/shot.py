@@ -24,7 +24,8 @@ import numpy as np
 from kdfaces.errors import KDInputError
 
 __all__ = ["Cancelled", "RIG_SUFFIX", "animation_table", "shot_table", "write_shot_file", "object_dynamics",
-           "object_shot_settings", "object_shot_table", "object_shot", "shot_name", "as_rig_file_gives_back"]
+           "object_shot_settings", "object_shot_table", "object_shot", "shot_name", "as_rig_file_gives_back",
+           "rig_constraint_tables"]
 
 #: The rig written next to an exported shot file ``<stem>.toml``: ``<stem>_rig.npz``.
 RIG_SUFFIX = "_rig.npz"
@@ -204,10 +205,34 @@ def object_shot_settings(obj, scene) -> dict:
     return {"rig": e.rig_key.hex(), "animation": e.anim_key.hex(), "dynamics": object_dynamics(obj, scene)}
 
 
+def rig_constraint_tables(obj, scene, constraints) -> list[dict]:
+    """``constraints`` (``[[constraints]]`` tables whose ``group`` names the Blender mesh's vertices, as
+    :func:`kdfaces.blender.ikd.constraint_tables` reads them) with each group on the rig's vertices: a welded mesh
+    (:func:`kdfaces.blender.scene._weld`, UV-seam copies) names the rig vertex of each mesh vertex, each rig vertex
+    once (an Empty vertex-parented to a seam copy constrains the copy's rig vertex; a vertex group holding both
+    copies of a seam vertex counts it once). Tables without a group, and every table of a mesh that does not weld,
+    are returned as they are."""
+    from .scene import object_entry
+
+    e = object_entry(obj, scene)
+    if e.weld is None:
+        return list(constraints)
+    out = []
+    for c in constraints:
+        if "group" in c:
+            mesh = np.asarray(c["group"], dtype=np.int64)
+            rig = e.rig_vertices(mesh)
+            _, first = np.unique(rig, return_index=True)
+            c = {**c, "group": [int(v) for v in rig[np.sort(first)]]}  # each rig vertex once, in the group's order
+        out.append(c)
+    return out
+
+
 def object_shot_table(obj, scene, constraints, *, rig_source: str = "rig.npz") -> dict:
     """The object's shot file as a dict: its rig (``rig_source``), shape-key animation over the scene's range,
     ``[dynamics]`` from its KD settings, and ``constraints`` (tables, e.g.
-    :func:`kdfaces.blender.ikd.constraint_tables`)."""
+    :func:`kdfaces.blender.ikd.constraint_tables`, on the mesh's vertices: :func:`rig_constraint_tables` puts
+    them on the rig's)."""
     from .scene import _armature, object_animation
 
     anim = object_animation(obj, scene)
@@ -217,7 +242,7 @@ def object_shot_table(obj, scene, constraints, *, rig_source: str = "rig.npz") -
                            "say yet (no root translation, no object-origin joint); IKD, bakes and Export shot file "
                            "need an object whose transform is not keyed (key a parent Empty instead)")
     return shot_table(name=shot_name(obj.name), rig_source=rig_source, animation=anim,
-                      dynamics=object_dynamics(obj, scene), constraints=list(constraints))
+                      dynamics=object_dynamics(obj, scene), constraints=rig_constraint_tables(obj, scene, constraints))
 
 
 def as_rig_file_gives_back(rig):

@@ -431,11 +431,6 @@ def draw_constraints(layout, obj, context=None) -> None:
     row.operator("kdfaces.clear_ikd", icon="X")
 
 
-def _active_mesh(context):
-    ob = context.active_object
-    return ob if ob is not None and ob.type == "MESH" else None
-
-
 def _tag_redraw(obj) -> None:
     obj.update_tag()
     if bpy.context.view_layer is not None:
@@ -444,7 +439,10 @@ def _tag_redraw(obj) -> None:
 
 CLASSES = ()
 if bpy is not None:
-    class KDFACES_OT_solve_ikd(bpy.types.Operator):
+    from .ops import MeshOperator, active_mesh, one_line
+    from .ui import sub_panels
+
+    class KDFACES_OT_solve_ikd(MeshOperator, bpy.types.Operator):
         """Solve IKD for the active object's constraint Empties and hold markers (the correction is stored with
         the object; keys are not touched)"""
 
@@ -455,16 +453,12 @@ if bpy is not None:
         warm: bpy.props.BoolProperty(name="Warm start", default=True,
                                      description="Start from the stored correction")
 
-        @classmethod
-        def poll(cls, context):
-            return _active_mesh(context) is not None
-
         def execute(self, context):
-            obj = _active_mesh(context)
+            obj = active_mesh(context)
             try:
                 r = solve_object(obj, context.scene, warm=self.warm)
             except Exception as e:  # noqa: BLE001 - one line in the report area, the scene untouched
-                self.report({"ERROR"}, str(e).splitlines()[0] if str(e) else type(e).__name__)
+                self.report({"ERROR"}, one_line(e))
                 return {"CANCELLED"}
             worst = max(r.errors_after) * 1e3
             self.report({"INFO"} if r.converged else {"WARNING"},
@@ -482,31 +476,15 @@ if bpy is not None:
 
         @classmethod
         def poll(cls, context):
-            ob = _active_mesh(context)
+            ob = active_mesh(context)
             return ob is not None and CORRECTION_PROP in ob.keys()
 
         def execute(self, context):
-            obj = _active_mesh(context)
+            obj = active_mesh(context)
             clear_correction(obj)
             _tag_redraw(obj)
             self.report({"INFO"}, f"{obj.name}: IKD correction removed")
             return {"FINISHED"}
 
-    def _ikd_panel(parent: str, space: str, region: str, **extra):
-        """The IKD sub-panel under the KD panel ``parent`` (the sidebar's or the Object properties')."""
-
-        def draw(self, context):
-            obj = _active_mesh(context)
-            if obj is None:
-                self.layout.label(text="Select a mesh with shape keys", icon="INFO")
-                return
-            draw_constraints(self.layout, obj, context)
-
-        return type(f"KDFACES_PT_ikd_{parent.rsplit('_', 1)[-1]}", (bpy.types.Panel,),
-                    {"bl_label": "IKD", "bl_idname": f"KDFACES_PT_ikd_{parent.rsplit('_', 1)[-1]}",
-                     "bl_parent_id": parent, "bl_space_type": space, "bl_region_type": region,
-                     "__doc__": "IKD constraints of the active mesh and Solve IKD", "draw": draw, **extra})
-
     CLASSES = (KDFACES_OT_solve_ikd, KDFACES_OT_clear_ikd,
-               _ikd_panel("KDFACES_PT_sidebar", "VIEW_3D", "UI", bl_category="KD"),
-               _ikd_panel("KDFACES_PT_object", "PROPERTIES", "WINDOW", bl_context="object"))
+               *sub_panels("ikd", "IKD", "IKD constraints of the active mesh and Solve IKD", draw_constraints))

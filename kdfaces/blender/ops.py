@@ -11,12 +11,28 @@ from . import handlers
 from . import scene as kdscene
 
 
-def _mesh_object(context):
+def active_mesh(context):
+    """The context's active object when it is a mesh, else None (what every KD, IKD and bake operator acts on)."""
     obj = context.active_object
     return obj if obj is not None and obj.type == "MESH" else None
 
 
-class KDFACES_OT_enable(bpy.types.Operator):
+def one_line(e: BaseException) -> str:
+    """The first line of an error's message (its type's name when it has none), for Blender's report area."""
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
+class MeshOperator:
+    """Mixin for the extension's operators on the active mesh (``class KDFACES_OT_x(MeshOperator,
+    bpy.types.Operator)``): available only while the active object is a mesh (:func:`active_mesh`)."""
+
+    @classmethod
+    def poll(cls, context):
+        return active_mesh(context) is not None
+
+
+class KDFACES_OT_enable(MeshOperator, bpy.types.Operator):
     """Turn kinodynamics on for the active mesh: checks its shape keys, armature and settings, then shows the
     current frame's KD state (kdfaces.blender.scene.apply_kd)"""
 
@@ -24,12 +40,8 @@ class KDFACES_OT_enable(bpy.types.Operator):
     bl_label = "Enable KD"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        return _mesh_object(context) is not None
-
     def execute(self, context):
-        obj = _mesh_object(context)
+        obj = active_mesh(context)
         try:
             handlers.update_object(obj, context.scene)  # adds the KD key only once the state exists
         except KDError as e:
@@ -45,19 +57,15 @@ class KDFACES_OT_enable(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class KDFACES_OT_disable(bpy.types.Operator):
+class KDFACES_OT_disable(MeshOperator, bpy.types.Operator):
     """Turn kinodynamics off for the active mesh and remove its KD shape key (kdfaces.blender.scene.remove_kd_key)"""
 
     bl_idname = "kdfaces.disable_kd"
     bl_label = "Disable KD"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        return _mesh_object(context) is not None
-
     def execute(self, context):
-        obj = _mesh_object(context)
+        obj = active_mesh(context)
         obj.kdfaces.enabled = False
         kdscene.remove_kd_key(obj)
         handlers.STATUS.pop(obj.name, None)
@@ -72,11 +80,11 @@ class KDFACES_OT_update(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        obj = _mesh_object(context)
+        obj = active_mesh(context)
         return obj is not None and obj.kdfaces.enabled
 
     def execute(self, context):
-        obj = _mesh_object(context)
+        obj = active_mesh(context)
         try:
             state = handlers.update_object(obj, context.scene)
         except KDError as e:

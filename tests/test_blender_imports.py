@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 from fbx_fixtures import BPY_PYTHON, bpy_available
 
+from kdfaces.blender.importer import IDENTITY_AXES, MESH_CACHE_AXES
 from kdfaces.cli import main as kdfaces_main
 from kdfaces.defaults import FRAME_START
 from kdfaces.io.gltf import gltf_vertex_map, load_gltf, save_gltf
@@ -149,6 +150,16 @@ for extras in (False, True):
     bpy.ops.export_scene.gltf(filepath=str(Path(out_path).parent / f"reexport_{int(extras)}.glb"),
                               export_format="GLB", use_selection=True, export_extras=extras, export_animations=False)
 
+# the modifier's axes: by default the pair that fits the mesh (pc2_axes), else the pair given
+pc2 = next(folder.glob("*.gltf.pc2"))
+mods = [m.name for m in g.modifiers]
+res["axes"] = {"fit": list(importer.pc2_axes(g, pc2))}
+for given in (None, importer.IDENTITY_AXES):
+    m = importer.setup_pc2_modifier(g, pc2, frame_start=1, name="axes", axes=given)
+    res["axes"][str(given)] = [m.forward_axis, m.up_axis, [x.name for x in g.modifiers][-1] == "axes"]
+g.modifiers.remove(g.modifiers["axes"])
+res["axes"]["modifiers_after"] = [m.name for m in g.modifiers] == mods
+
 # bad input through the operator: one error in the report, the scene as it was
 bpy.utils.register_class(importer.KDFACES_OT_import_shot)
 state = lambda: (len(bpy.data.objects), len(bpy.data.meshes), scene.render.fps, scene.frame_start, scene.frame_end)
@@ -262,6 +273,14 @@ def test_load_gltf_reads_blenders_re_export_with_and_without_custom_properties(b
                                       np.sort(rig.faces, axis=1)[np.lexsort(np.sort(rig.faces, axis=1).T)])
     doc = (folder / "reexport_1.glb").read_bytes()
     assert b"kdfaces_source_vertices" in doc  # the stale accessor index Blender copies with custom properties
+
+
+def test_mesh_cache_axes_fit_the_mesh_or_are_given(blender):
+    res, _ = blender
+    a = res["axes"]
+    assert a["fit"] == list(MESH_CACHE_AXES)  # the glTF importer's z-up mesh
+    assert a["None"] == [*MESH_CACHE_AXES, True] and a[str(IDENTITY_AXES)] == [*IDENTITY_AXES, True], a
+    assert a["modifiers_after"]
 
 
 def test_bad_input_is_one_error_and_leaves_the_scene_as_it_was(blender):

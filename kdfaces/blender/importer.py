@@ -231,10 +231,12 @@ def pc2_axes(obj, path) -> tuple[str, str]:
     return MESH_CACHE_AXES if np.median(np.abs(co - z_up)) < np.median(np.abs(co - x)) else IDENTITY_AXES
 
 
-def setup_pc2_modifier(obj, path, *, frame_start: float, name: str = "kdfaces cache"):
+def setup_pc2_modifier(obj, path, *, frame_start: float, name: str = "kdfaces cache",
+                       axes: tuple[str, str] | None = None):
     """Give ``obj`` a Mesh Cache modifier (added, or the one named ``name``) playing the PC2 ``path``: format PC2,
     time mode "Frame", play mode "Scene", Frame Start ``frame_start`` (sample k at scene frame ``frame_start + k``),
-    the axes that fit the mesh (:func:`pc2_axes`), overwrite, linear interpolation. Returns the modifier."""
+    the modifier's (forward_axis, up_axis) ``axes`` (default: the pair that fits the mesh, :func:`pc2_axes`),
+    overwrite, linear interpolation, last in the stack when added. Returns the modifier."""
     mod = obj.modifiers.get(name)
     if mod is None or mod.type != "MESH_CACHE":
         mod = obj.modifiers.new(name=name, type="MESH_CACHE")
@@ -244,7 +246,7 @@ def setup_pc2_modifier(obj, path, *, frame_start: float, name: str = "kdfaces ca
     mod.play_mode = "SCENE"
     mod.frame_start = float(frame_start)
     mod.frame_scale = 1.0
-    mod.forward_axis, mod.up_axis = pc2_axes(obj, path)
+    mod.forward_axis, mod.up_axis = pc2_axes(obj, path) if axes is None else axes
     mod.deform_mode = "OVERWRITE"
     mod.interpolation = "LINEAR"
     mod.factor = 1.0

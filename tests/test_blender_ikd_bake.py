@@ -132,6 +132,9 @@ class Layout:
     def row(self, **kw):
         return self
 
+    def column(self, **kw):
+        return self
+
     def label(self, text="", icon="NONE"):
         self.lines.append(text)
 
@@ -139,10 +142,33 @@ class Layout:
         self.lines.append(idname)
         return self
 
+    def prop(self, data, name, **kw):
+        self.lines.append(name)
+
 
 R["panel_classes"] = [c.__name__ for c in ikd.CLASSES + bake.CLASSES if issubclass(c, bpy.types.Panel)]
 R["panel_before"] = []
 ikd.draw_constraints(Layout(R["panel_before"]), ob, bpy.context)
+
+# every registered panel: where it is declared to show, and what its own draw draws with and without a mesh
+from kdfaces.blender import ui
+
+PANEL_ATTRS = ("bl_idname", "bl_parent_id", "bl_space_type", "bl_region_type", "bl_category",
+               "bl_context", "bl_options")
+OPERATORS = ("enable_kd", "disable_kd", "update_kd", "clear_cache", "solve_ikd", "clear_ikd", "bake", "export_shot")
+R["panels"], R["polls"] = {}, {}
+for active in (ob, None):
+    bpy.context.view_layer.objects.active = active
+    tag = "mesh" if active is not None else "none"
+    R["polls"][tag] = {name: getattr(bpy.ops.kdfaces, name).poll() for name in OPERATORS}
+    for cls in ui.CLASSES + ikd.CLASSES + bake.CLASSES:
+        if issubclass(cls, bpy.types.Panel):
+            entry = R["panels"].setdefault(cls.__name__, {
+                "attrs": {k: sorted(v) if isinstance(v, set) else v for k, v in vars(cls).items() if k in PANEL_ATTRS},
+                "label": cls.bl_label, "registered": getattr(bpy.types, cls.__name__, None) is cls})
+            entry[tag] = []
+            cls.draw(type("PanelInstance", (), {"layout": Layout(entry[tag])})(), bpy.context)
+bpy.context.view_layer.objects.active = ob
 
 
 def keys_snapshot():
@@ -487,6 +513,30 @@ def test_the_panel_lists_the_constraints(sessions):
     assert "kdfaces.solve_ikd" in before and "correction:" not in before
     assert "correction: converged" in after and "stale" not in after
     assert " mm" in after  # each constraint's error after the solve
+
+
+def test_panels_and_operators_as_declared(sessions):
+    _, a, _ = sessions
+    sidebar = {"bl_space_type": "VIEW_3D", "bl_region_type": "UI", "bl_category": "KD"}
+    props = {"bl_space_type": "PROPERTIES", "bl_region_type": "WINDOW", "bl_context": "object"}
+    want = {"KDFACES_PT_sidebar": ("Kinodynamics", sidebar), "KDFACES_PT_object": ("Kinodynamics", props)}
+    for name, label, extra in (("ikd", "IKD", {}), ("bake", "Bake and hand-off", {"bl_options": ["DEFAULT_CLOSED"]})):
+        for parent, where in (("sidebar", sidebar), ("object", props)):
+            want[f"KDFACES_PT_{name}_{parent}"] = (label, {"bl_parent_id": f"KDFACES_PT_{parent}", **where, **extra})
+    panels = a["panels"]
+    assert sorted(panels) == sorted(want)
+    for name, p in panels.items():
+        label, attrs = want[name]
+        assert p["registered"] and p["label"] == label and p["attrs"] == {"bl_idname": name, **attrs}, (name, p)
+        assert p["none"] == ["Select a mesh with shape keys"], (name, p)  # without a mesh: the hint only
+        assert p["mesh"] and "Select a mesh with shape keys" not in p["mesh"], (name, p)
+    assert "kdfaces.enable_kd" in panels["KDFACES_PT_object"]["mesh"]
+    assert "kdfaces.solve_ikd" in panels["KDFACES_PT_ikd_sidebar"]["mesh"]
+    assert "kdfaces.bake" in panels["KDFACES_PT_bake_object"]["mesh"]
+    # operators on the active mesh are available with one; Recompute needs KD on, Clear IKD a stored correction
+    assert a["polls"]["mesh"] == {"enable_kd": True, "disable_kd": True, "update_kd": False, "clear_cache": True,
+                                  "solve_ikd": True, "clear_ikd": False, "bake": True, "export_shot": True}
+    assert a["polls"]["none"] == {**{k: False for k in a["polls"]["mesh"]}, "clear_cache": True}
 
 
 def test_moving_the_empty_and_solving_again(sessions):

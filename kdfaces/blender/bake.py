@@ -39,7 +39,7 @@ from .shot import (
 )
 
 __all__ = ["BakeCancelled", "bake_shot", "mesh_cache_frame_start", "bake_object", "setup_mesh_cache",
-           "export_object_shot", "set_scene_from_shot", "BAKE_KINDS", "CLASSES"]
+           "export_object_shot", "set_scene_from_shot", "bake_key", "store_run_correction", "BAKE_KINDS", "CLASSES"]
 
 #: What a Blender bake can write: a PC2 point cache (with a Mesh Cache modifier) or USD.
 BAKE_KINDS = ("pc2", "usd")
@@ -123,21 +123,10 @@ def setup_mesh_cache(obj, scene, path, *, name: str = "KD cache"):
     (:func:`mesh_cache_frame_start`), the toolkit's y-up axes (the modifier's forward +Z, up −Y: what turns the
     file's points p into :func:`kdfaces.blender.scene.from_kd` (p), checked in tests/test_blender_ikd_bake.py), last
     in the stack. Returns the modifier."""
-    mod = obj.modifiers.get(name)
-    if mod is None or mod.type != "MESH_CACHE":
-        mod = obj.modifiers.new(name=name, type="MESH_CACHE")
-    mod.cache_format = "PC2"
-    mod.filepath = str(Path(path).resolve())
-    mod.time_mode = "FRAME"
-    mod.play_mode = "SCENE"
-    mod.frame_start = mesh_cache_frame_start(int(scene.frame_start))
-    mod.frame_scale = 1.0
-    mod.forward_axis = "POS_Z"
-    mod.up_axis = "NEG_Y"
-    mod.deform_mode = "OVERWRITE"
-    mod.interpolation = "LINEAR"
-    mod.factor = 1.0
-    return mod
+    from .importer import MESH_CACHE_AXES, setup_pc2_modifier
+
+    return setup_pc2_modifier(obj, path, frame_start=mesh_cache_frame_start(int(scene.frame_start)), name=name,
+                              axes=MESH_CACHE_AXES)
 
 
 def bake_object(obj, scene, path, *, kind: str = "pc2", cancel=None, modifier: bool = True):
@@ -149,7 +138,7 @@ def bake_object(obj, scene, path, *, kind: str = "pc2", cancel=None, modifier: b
     gets a Mesh Cache modifier playing it (:func:`setup_mesh_cache`); the run's IKD correction is stored with the
     object. ``cancel()`` (Esc) is asked before each chunk: then :class:`BakeCancelled` is raised, no file is left
     and the scene is as it was. Returns ``(path, run)``."""
-    from .ikd import constraint_tables, constraints_key, store_correction
+    from .ikd import constraint_tables
     from .scene import object_entry, scene_unit_m
 
     if kind not in BAKE_KINDS:
@@ -160,17 +149,34 @@ def bake_object(obj, scene, path, *, kind: str = "pc2", cancel=None, modifier: b
     p.parent.mkdir(parents=True, exist_ok=True)
     written, run = bake_shot(shot, p, kind=kind, cancel=cancel, unit_m=scene_unit_m(scene),
                              vertex_map=object_entry(obj, scene).weld)
-    if run.ikd_result is not None:
-        r = run.ikd_result
-        store_correction(obj, r.correction, key=constraints_key(tables, object_shot_settings(obj, scene)),
-                         report={"reason": r.reason, "converged": bool(r.converged), "iterations": int(r.iterations),
-                                 "wall_s": float(r.wall_s), "window_s": float(run.window_s),
-                                 "labels": [c.label for c in r.constraints],
-                                 "errors_m": [float(x) for x in r.errors_after],
-                                 "units": [c.unit for c in r.constraints], "warm": False})
+    store_run_correction(obj, run, bake_key(obj, scene, tables))
     if kind == "pc2" and modifier:
         setup_mesh_cache(obj, scene, written)
     return written, run
+
+
+def bake_key(obj, scene, tables) -> str:
+    """What a bake's IKD correction is stored under: the constraints ``tables`` and the object's shot settings
+    (:func:`~kdfaces.blender.ikd.constraints_key`), read when the bake starts."""
+    from .ikd import constraints_key
+
+    return constraints_key(tables, object_shot_settings(obj, scene))
+
+
+def store_run_correction(obj, run, key: str) -> None:
+    """Store ``run``'s IKD correction (if it solved one) with ``obj`` under ``key`` (:func:`bake_key`), with the
+    solve's report, as Solve IKD stores its own (:func:`~kdfaces.blender.ikd.store_correction`)."""
+    from .ikd import store_correction
+
+    r = run.ikd_result
+    if r is None:
+        return
+    store_correction(obj, r.correction, key=key,
+                     report={"reason": r.reason, "converged": bool(r.converged), "iterations": int(r.iterations),
+                             "wall_s": float(r.wall_s), "window_s": float(run.window_s),
+                             "labels": [c.label for c in r.constraints],
+                             "errors_m": [float(x) for x in r.errors_after],
+                             "units": [c.unit for c in r.constraints], "warm": False})
 
 
 def set_scene_from_shot(scene, shot, *, start_frame: int | None = None) -> tuple[int, int]:
@@ -239,7 +245,9 @@ if bpy is not None:
             try:
                 from .ikd import constraint_tables
 
-                self._shot = object_shot(obj, scene, constraint_tables(obj, scene))
+                tables = constraint_tables(obj, scene)
+                self._shot = object_shot(obj, scene, tables)
+                self._key = bake_key(obj, scene, tables)
             except Exception as e:  # noqa: BLE001
                 self.report({"ERROR"}, _one_line(e))
                 return {"CANCELLED"}
@@ -277,8 +285,10 @@ if bpy is not None:
                 return {"CANCELLED"}
             path, run = self._outcome["ok"]
             obj = bpy.data.objects.get(self._obj_name)
-            if obj is not None and self.kind == "pc2":
-                setup_mesh_cache(obj, context.scene, path)
+            if obj is not None:  # as the blocking bake: the run's IKD correction, then the Mesh Cache
+                store_run_correction(obj, run, self._key)
+                if self.kind == "pc2":
+                    setup_mesh_cache(obj, context.scene, path)
             self.report({"INFO"}, f"baked {path.name}: {run.num_frames} frames")
             return {"FINISHED"}
 

@@ -73,6 +73,37 @@ def test_the_proxy_is_a_vertex_subset_with_an_exact_embedding(dense_rig, demo):
     assert model.num_simulated == len(proxy) and model.clusters.num_clusters > 0
 
 
+def test_the_shape_space_fit_is_the_closest_point_of_the_triangle():
+    from kdfaces.rig.proxy import _simplex_fit
+
+    rng = np.random.default_rng(3)
+    m, d = 400, 7
+    corners = rng.normal(size=(m, 3, d))
+    # a point of the triangle (weights drawn on the simplex) is its own closest point
+    w0 = rng.dirichlet(np.ones(3), size=m)
+    w, e = _simplex_fit(corners, np.einsum("mj,mjd->md", w0, corners))
+    np.testing.assert_allclose(w, w0, rtol=0, atol=1e-9)  # normal equations of O(1) edges: round-off ~1e-15 × cond
+    assert e.max() <= 1e-20
+    # any point: the weights lie on the simplex and satisfy its optimality (KKT) conditions: the gradient
+    # g_j = c_j · (Σ w c − x) equals its least value on every corner with weight > 0 and is no smaller elsewhere
+    x = 2.0 * rng.normal(size=(m, d))
+    w, e = _simplex_fit(corners, x)
+    assert w.min() >= 0.0
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=0, atol=1e-12)
+    r = np.einsum("mj,mjd->md", w, corners) - x
+    np.testing.assert_allclose(e, (r * r).sum(axis=1), rtol=1e-12)
+    g = np.einsum("mjd,md->mj", corners, r)
+    lam = g.min(axis=1, keepdims=True)
+    tol = 1e-9 * (1.0 + np.abs(g).max())  # O(1) data: the candidates' round-off, far below any active-set gap
+    assert (np.where(w > 1e-12, g - lam, 0.0) <= tol).all()
+    # and no other point of the triangle is closer (a grid of 1,326 weights on the simplex)
+    a, b = np.meshgrid(np.linspace(0, 1, 51), np.linspace(0, 1, 51))
+    grid = np.stack([1 - a - b, a, b], axis=-1).reshape(-1, 3)
+    grid = grid[grid.min(axis=1) >= -1e-12]
+    grid_e = (((grid @ corners[:20]) - x[:20, None]) ** 2).sum(-1).min(axis=1)
+    assert (e[:20] <= grid_e + 1e-12).all()
+
+
 def test_the_proxy_rig_is_the_dense_rigs_rows(dense_rig, demo):
     traj, _, model = demo
     proxy = FaceProxy(vertices=model.region, faces=np.searchsorted(model.region, model.proxy_faces),
@@ -139,10 +170,11 @@ def _accuracy(traj, dense, model, times):
 
 #: The proxy's error relative to ε. The issue asks for ε/2 on every frame; a 6k proxy of the 19k face reaches it on
 #: 99 % of the vertices, but not at the mouth corners and the chin, where the dense model's own 2-ring shape-matching
-#: clusters (a few mm across) resolve a deviation that changes by ~10 mm over a centimetre: measured there 0.7 ε
-#: interpolation (W) and 1.0 ε dynamics (the proxy's clusters are coarser), 1.3–1.5 ε in all
-#: (docs/dense-rigs.md). These bounds hold what is reached, with 15 % margin, so that a regression fails.
-P99_FRACTION, MAX_FRACTION = 0.5, 1.75
+#: clusters (a few mm across) resolve a deviation that changes by ~10 mm over a centimetre: measured there up to
+#: 1.1 ε interpolation (W) and 1.2–1.4 ε dynamics (the proxy's clusters group other vertices); on these frames
+#: 0.39–0.41 ε (99th percentile) and 1.18–1.41 ε in all (docs/dense-rigs.md). These bounds hold what is reached
+#: (the issue's ε/2 at the 99th percentile; 1.41 ε with 20 % margin), so that a regression fails.
+P99_FRACTION, MAX_FRACTION = 0.5, 1.7
 
 
 @pytest.mark.parametrize("take", ["demo", "capture"])

@@ -15,8 +15,9 @@ The proxy
     trajectory (IKD's x_K + f on dense vertices) reaches the proxy with no extra mapping.
 W
     (N, P) scipy CSR: each dense vertex of the moving region that is not rigid and not a proxy vertex gets the
-    barycentric coordinates of its closest point on the proxy surface (three nonzeros, rows summing to one, so a
-    rigid motion of the deviation field — the head turn's lag — is carried exactly); a proxy vertex's row is the
+    barycentric coordinates of its closest point on a proxy triangle in shape space (rest position and blend-shape
+    displacements, :func:`~kdfaces.rig.proxy.embedding_matrix`; three non-negative nonzeros, rows summing to one,
+    so a rigid motion of the deviation field — the head turn's lag — is carried exactly); a proxy vertex's row is the
     identity (its dense state is the proxy state itself); rigid vertices (eyes, teeth) and vertices outside the
     moving region get zero rows: they follow x_K exactly.
 

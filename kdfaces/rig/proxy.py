@@ -78,12 +78,15 @@ def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, pro
     """W (N, P) CSR for the dense vertices ``rows`` (indices into the N ``dense_vertices`` (N, 3) [m]), zero rows
     elsewhere; proxy vertices (``proxy_vertices`` (P,), indices into N) get identity rows.
 
-    A dense vertex's row is the barycentric coordinates of its projection onto one proxy triangle (``proxy_faces``
-    (G, 3), indices into the P proxy vertices), clipped to the triangle: among the triangles around its
-    :data:`EMBED_NEIGHBOURS` nearest proxy vertices in shape space (:func:`shape_features` with the blend-shape
-    ``deltas`` (K, N, 3) [m]), the one whose interpolated rest position *and shape displacements* are nearest to the
-    vertex's own. (Nearest in space alone would embed an upper-lip vertex in the lower lip: their rest positions
-    are a millimetre apart, their jaw-open displacements centimetres.)"""
+    A dense vertex's row is fitted in shape space (:func:`shape_features` with the blend-shape ``deltas``
+    (K, N, 3) [m]): among the triangles (``proxy_faces`` (G, 3), indices into the P proxy vertices) around its
+    :data:`EMBED_NEIGHBOURS` nearest proxy vertices there, the convex combination of one triangle's corners whose
+    rest position *and shape displacements* are nearest to the vertex's own (the closest point of the triangle in
+    shape space, ``_simplex_fit``). The deviation x − x_K the proxy carries follows the shapes (their motion, and
+    gains that soft-tissue maps derive from their displacements), so weights that reproduce the shapes'
+    displacements reproduce it too; with no shapes the fit is the closest point of the surface. (Nearest in space
+    alone would embed an upper-lip vertex in the lower lip: their rest positions are a millimetre apart, their
+    jaw-open displacements centimetres.)"""
     from scipy.spatial import cKDTree
 
     n, p = len(dense_vertices), len(proxy_vertices)
@@ -105,18 +108,13 @@ def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, pro
         best_err = np.full(len(rest), np.inf)
         best_tri = np.zeros(len(rest), dtype=np.int64)
         best_bary = np.zeros((len(rest), 3))
-        pv = v[proxy_vertices]
         for c0 in range(0, len(rest), 8192):
             q = np.arange(c0, min(c0 + 8192, len(rest)))
             cand = sp.csr_matrix(vt[near[q].ravel()])  # one row per (query, neighbour)
             counts = np.diff(cand.indptr)
             qi = np.repeat(np.repeat(q, k), counts)
             tri = cand.indices
-            corners = pf[tri]
-            a, b, c = pv[corners[:, 0]], pv[corners[:, 1]], pv[corners[:, 2]]
-            bary = _projected_barycentrics(v[rest[qi]], a, b, c)
-            fit = np.einsum("mj,mjd->md", bary, pfeat[corners])
-            err = ((fit - feat[rest[qi]]) ** 2).sum(axis=1)
+            bary, err = _simplex_fit(pfeat[pf[tri]], feat[rest[qi]])
             order = np.lexsort((err, qi))  # per query, the best candidate first
             first = order[np.r_[True, qi[order][1:] != qi[order][:-1]]]
             best_err[qi[first]] = err[first]
@@ -131,19 +129,45 @@ def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, pro
     return W
 
 
-def _projected_barycentrics(x, a, b, c) -> np.ndarray:
-    """Barycentric coordinates (M, 3) of points ``x`` (M, 3) projected onto the planes of triangles ``a, b, c``
-    (M, 3 each), clipped to the triangle (non-negative, summing to one)."""
-    e0, e1, d = b - a, c - a, x - a
-    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
-    d20, d21 = (d * e0).sum(1), (d * e1).sum(1)
-    den = d00 * d11 - d01 * d01
-    den = np.where(np.abs(den) > 1e-30, den, 1e-30)
-    wb = (d11 * d20 - d01 * d21) / den
-    wc = (d00 * d21 - d01 * d20) / den
-    bary = np.clip(np.stack([1.0 - wb - wc, wb, wc], axis=1), 0.0, None)
-    s = bary.sum(axis=1, keepdims=True)
-    return np.where(s > 0, bary / np.where(s > 0, s, 1.0), 1.0 / 3.0)
+def _simplex_fit(corners: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The closest point to each ``x`` (M, D) on the triangle ``corners`` (M, 3, D), in any dimension D: its
+    barycentric weights (M, 3) (non-negative, summing to one) and squared distance (M,) (units of x squared).
+
+    The minimiser of |Σ_j w_j c_j − x|² over the triangle is the unconstrained one in the triangle's plane when its
+    weights are non-negative, else the closest point of an edge (the three edges' clamped projections cover the
+    corners too); the least of those candidates that is feasible."""
+    c = np.asarray(corners, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    m = len(x)
+    best_w = np.zeros((m, 3))
+    best_e = np.full(m, np.inf)
+
+    def consider(w):
+        r = np.einsum("mj,mjd->md", w, c) - x
+        e = (r * r).sum(axis=1)
+        ok = (w >= 0.0).all(axis=1) & (e < best_e)
+        best_w[ok], best_e[ok] = w[ok], e[ok]
+
+    # in the plane: w = (1 − a − b, a, b), the normal equations of the two edge vectors from corner 0
+    e1, e2, d = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], x - c[:, 0]
+    g11, g12, g22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    r1, r2 = (e1 * d).sum(1), (e2 * d).sum(1)
+    det = g11 * g22 - g12 * g12
+    flat = det <= 1e-12 * np.maximum(g11 * g22, 1e-300)  # a degenerate triangle: its edges decide
+    det = np.where(flat, 1.0, det)
+    a, b = (g22 * r1 - g12 * r2) / det, (g11 * r2 - g12 * r1) / det
+    w = np.stack([1.0 - a - b, a, b], axis=1)
+    w[flat] = -1.0
+    consider(w)
+    rows = np.arange(m)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        e = c[:, j] - c[:, i]
+        ee = (e * e).sum(1)
+        t = np.clip(((x - c[:, i]) * e).sum(1) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
+        w = np.zeros((m, 3))
+        w[rows, i], w[rows, j] = 1.0 - t, t
+        consider(w)
+    return best_w, best_e
 
 
 def build_proxy(vertices: np.ndarray, faces: np.ndarray, simulated: np.ndarray, target_vertices: int,

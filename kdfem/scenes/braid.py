@@ -34,7 +34,7 @@ from kdfaces.errors import KDInputError
 
 __all__ = ["BRAID_HEAD_KEYS", "BRAID_FPS", "BRAID_STEP_S", "BRAID_MATERIAL", "BRAID_RAYLEIGH_ALPHA",
            "BRAID_RAYLEIGH_BETA", "BraidScene", "braid_animation", "build_braid_scene", "contact_aware_windows",
-           "contact_check", "shoulder_flip", "run_braid"]
+           "contact_check", "shoulder_flip", "run_braid", "kd_states_by_start"]
 
 #: The head's keys (time [s], (yaw, pitch, roll) [rad] of the whole head chain): still, a fast turn to the left
 #: (yaw +, the back of the head and the braid's root swing to −x and forward) with the head bowed in its own frame
@@ -317,6 +317,46 @@ def run_braid(out, *, frame_stride: int = 1, movie: bool = True, contact: bool =
     }
     write_summary(out, summary)
     return summary
+
+
+def kd_states_by_start(system, trajectory, times, windows_s, *, step_s: float):
+    """KD states at ``times`` (T,) [s] with one window per time ``windows_s`` (T,) [s] → (T, N, 3) [m], the states
+    :func:`kdfaces.kd.simulate_kd` gives for those windows, computed one simulation per distinct window start.
+
+    A KD state at t with window δ is the simulation from x_K(t − δ), ẋ_K(t − δ) over n = ⌈δ/h⌉ steps of h =
+    ``step_s``. Times whose windows start at the same grid time t − n·h are therefore one simulation from there,
+    observed at each of those times (:func:`kdfaces.kd.simulate_full` with that ``start_s``: the same initial state
+    and the same steps; the step grid's times are computed as start + k·h instead of t − (n − k)·h, a difference of
+    round-off: 1e-16 m measured on the braid); a window of 0 is x_K itself. Contact-aware windows share starts —
+    every frame whose window reaches back past an undecayed contact event starts where that event's windows start
+    (:func:`contact_aware_windows`) — so checking every frame of a shot costs about one simulation per event instead of
+    one per frame. Scrubbing one frame still costs its own window (:func:`kdfaces.kd.simulate_kd`)."""
+    from kdfaces.kd import observe_kinematic, simulate_full, simulate_kd, window_steps
+
+    t = np.asarray(times, dtype=np.float64)
+    w = np.asarray(windows_s, dtype=np.float64)
+    if w.shape != t.shape:
+        raise KDInputError(f"windows_s: expected one window per time, shape {t.shape}, got {w.shape}")
+    h = float(step_s)
+    origin = float(getattr(trajectory, "start", 0.0))
+    steps = np.array([0 if x == 0 else window_steps(float(x), h) for x in w], dtype=np.int64)
+    start = np.round((t - origin) / h).astype(np.int64) - steps  # grid index of each window's start
+    out = [None] * len(t)
+    still = np.flatnonzero(steps == 0)
+    if len(still):
+        x0 = np.asarray(observe_kinematic(system, trajectory, t[still]))
+        for k, i in enumerate(still):
+            out[i] = x0[k]
+    for j in np.unique(start[steps > 0]):
+        group = np.flatnonzero((start == j) & (steps > 0))
+        if len(group) == 1:
+            i = group[0]
+            x = np.asarray(simulate_kd(system, trajectory, t[i:i + 1], w[i:i + 1], step_s=h))
+        else:
+            x = np.asarray(simulate_full(system, trajectory, t[group], step_s=h, start_s=origin + j * h))
+        for k, i in enumerate(group):
+            out[i] = x[k]
+    return np.stack(out)
 
 
 def _fall_back(times, flip_s, front) -> float | None:

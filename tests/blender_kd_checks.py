@@ -229,6 +229,18 @@ def main(cfg: dict) -> dict:
     twin.kdfaces.window_mode, twin.kdfaces.window_s = "seconds", 1000.0
     before = snapshot()
     bad["window_too_long"] = [_try_op(bpy.ops.kdfaces.enable_kd), snapshot() == before]
+    # within the step limit but beyond the memory estimate: as on a machine with 1 MiB to spare (the window's
+    # 51 baked rows of x_K, ẋ_K alone are 51 × 48 B × the rig's vertices, ~11 MiB on the default head)
+    import kdfaces.kd as kd_module
+
+    budget = kd_module.memory_budget_bytes
+    kd_module.memory_budget_bytes = lambda max_memory_bytes=None: 1 << 20
+    twin.kdfaces.window_s = 2.0
+    before = snapshot()
+    try:
+        bad["window_beyond_memory"] = [_try_op(bpy.ops.kdfaces.enable_kd), snapshot() == before]
+    finally:
+        kd_module.memory_budget_bytes = budget
     res["bad"] = bad
     del cube
     np.savez(cfg["out"], **arrays)

@@ -231,6 +231,7 @@ def test_a_keyed_object_rotation_is_head_motion(blender_run):
     ("no_shape_keys", "has no shape keys"),
     ("armature_without_head", "has no head bone"),
     ("window_too_long", "expected at most"),
+    ("window_beyond_memory", "more than the memory budget of 1 MiB"),
 ])
 def test_bad_input_one_message_scene_unchanged(blender_run, case, words):
     res, _, _, _ = blender_run

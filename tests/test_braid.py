@@ -34,6 +34,73 @@ def scene_contact():
     return build_braid_scene(contact=True, threads=1)
 
 
+#: The flip test's frames: the first 1.2 s (turn, flip and hold) at every second frame.
+FLIP_SPAN_S = 1.2
+#: The ground-truth check's frames (test_cheap_plan_windows_meet_epsilon_against_the_full_simulation).
+PLAN_FRAMES_S = (2.72, 6.0)
+
+
+@pytest.fixture(scope="module")
+def contact_runs(scene_contact):
+    """The expensive simulations of the contact tests, each run once and on two threads at a time: the full
+    simulation with contact (the ground truth: the flip test's frames and the plan's frames in one run from the
+    shot start, so the flip test's 1.2 s are the first steps of the plan's 6 s) and the fixed-window KD state at
+    2.72 s on a second scene of its own, while this thread runs the cheap pass, the plan and the contact-aware KD
+    state at 2.72 s; the second scene then takes the aware state at 6.0 s and plans again from a copy of the same
+    pass (on its own, fresh system). A system steps one batch at a time (its stepper cache and pending window are
+    its own), hence two scenes; each KD state is its own simulation with its own step count, so the states are the
+    bits one batch of both would give.
+
+    Returns a dict: flip_times, frames (s); full_flip, full_frames (the full simulation there); eps, window (the
+    §5.3 estimate); pass_times, pass_X (the cheap pass); aw, aw2 (the plan, and again on the second scene), events;
+    aware, fixed (KD at the frames with the plan's windows, at the first frame with the fixed window)."""
+    from concurrent.futures import Future, ThreadPoolExecutor
+
+    from kdfaces.kd import simulate_full, simulate_kd
+    from kdfaces.resources import single_threaded_blas
+    from kdfem.modal.adaptive import CONTACT_PASS_SAMPLE_STEPS, contact_aware_windows, contact_pass
+    from kdfem.scenes.braid import build_braid_scene
+
+    sc = scene_contact
+    sys_, h = sc.system, sc.step_s
+    est = sys_.automatic_window(sc.joints, step_s=h)
+    eps, window = float(est.epsilon_m), float(est.window_s)
+    flip_times = sc.animation.frame_times[::2]
+    flip_times = flip_times[flip_times <= FLIP_SPAN_S + 1e-9]
+    F = np.array(PLAN_FRAMES_S)
+    H = CONTACT_PASS_SAMPLE_STEPS * h
+    tp = H * np.arange(int(round(F.max() / H)) + 1)
+    plan = {}
+
+    def second_scene():
+        other = build_braid_scene(contact=True, threads=1)
+        full = simulate_full(other.system, other.joints, np.concatenate([flip_times, F]), step_s=h)
+        fixed = simulate_kd(other.system, other.joints, F[:1], window, step_s=h)
+        ready.result()  # the plan, from this thread's pass
+        late = simulate_kd(other.system, other.joints, F[1:], plan["aw"].window_s[1:], step_s=h)
+        aw2, _ = contact_aware_windows(other.system, other.joints, F, plan["pass_X"].copy(), pass_times=tp,
+                                       step_s=h, epsilon_m=eps)
+        return full, fixed, late, aw2
+
+    # one BLAS limit over both threads (kdfaces.resources.single_threaded_blas: concurrent blocks share it)
+    ready = Future()  # set once this thread's plan exists (or failed)
+    with single_threaded_blas(), ThreadPoolExecutor(1) as pool:
+        other = pool.submit(second_scene)
+        try:
+            Xp = contact_pass(sys_, sc.joints, tp, step_s=h)
+            aw, events = contact_aware_windows(sys_, sc.joints, F, Xp, pass_times=tp, step_s=h, epsilon_m=eps)
+            plan.update(aw=aw, pass_X=Xp)
+            ready.set_result(True)
+        except BaseException as exc:
+            ready.set_exception(exc)
+            raise
+        early = simulate_kd(sys_, sc.joints, F[:1], aw.window_s[:1], step_s=h)
+        full, fixed, late, aw2 = other.result()
+    return {"flip_times": flip_times, "frames": F, "full_flip": full[:len(flip_times)],
+            "full_frames": full[len(flip_times):], "eps": eps, "window": window, "pass_times": tp, "pass_X": Xp,
+            "aw": aw, "aw2": aw2, "events": events, "aware": np.concatenate([early, late]), "fixed": fixed}
+
+
 def test_braid_mesh_valid():
     from kdfem.geometry.braid import BraidParams, braid_tetmesh
     from kdfem.geometry.tetmesh import tet_quality
@@ -176,17 +243,16 @@ def test_contact_aware_windows_reach_back_past_contact(scene_contact):
     assert (aw.window_s >= modal.window_s - 1e-12).all() and (t - aw.window_s >= -1e-9).all()
 
 
-def test_full_simulation_flips_braid_without_intersection(scene_contact):
+def test_full_simulation_flips_braid_without_intersection(scene_contact, contact_runs):
     """The full simulation with contact flips the braid over the shoulder (its tip crosses the shoulder plane, at
     t ≈ 0.72 s under BRAID_HEAD_KEYS) and the independent ipctk check finds no intersection and a positive distance
-    on every evaluated frame. The first 1.2 s (turn, flip and hold) at every second frame, to keep the test short."""
-    from kdfaces.kd import simulate_full
+    on every evaluated frame. The first 1.2 s (turn, flip and hold) at every second frame, to keep the test short
+    (the first steps of the ground truth's run, :func:`contact_runs`)."""
     from kdfem.scenes.braid import contact_check, shoulder_flip
 
     sc = scene_contact
-    times = sc.animation.frame_times[::2]
-    times = times[times <= 1.2 + 1e-9]
-    X = simulate_full(sc.system, sc.joints, times, step_s=sc.step_s)
+    times, X = contact_runs["flip_times"], contact_runs["full_flip"]
+    assert len(times) == 16 and times[-1] == pytest.approx(FLIP_SPAN_S)  # 0, 0.08, …, 1.2 s at 25 fps
     flip, front = shoulder_flip(sc, times, X)
     assert flip is not None and front.max() > 0
     c = contact_check(sc, times, X)
@@ -251,7 +317,7 @@ def test_run_braid_summary_without_contact(tmp_path):
         assert (tmp_path / name).stat().st_size > 0
 
 
-def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_contact):
+def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_contact, contact_runs):
     """The contact-aware plan from the cheap pass (a coarse-step contact simulation, not the ground truth's run) and
     x_K, checked against the full simulation with contact on the frames that matter (every frame would take an hour
     on two shared cores): 2.72 s, the braid draped over the shoulder longer ago than the §5.3 window (KD with the
@@ -259,21 +325,14 @@ def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_conta
     ε); 6.0 s, after its swing has decayed, where the window shrinks to start after the fall-back and is within ε
     too. (3.6 s, just after the second move threw it back, is in the every-8th-frame table of docs/hat.md: its
     window reaches back before the flip, the test's costliest state, so it is left out to keep the suite short.) The
-    plan is the same bits when computed again from the same pass."""
-    from kdfaces.kd import simulate_full, simulate_kd
-    from kdfem.modal.adaptive import CONTACT_PASS_SAMPLE_STEPS, contact_aware_windows, contact_pass
+    plan is the same bits when computed again from the same pass (by a second, fresh system of the same scene). The
+    runs are :func:`contact_runs`'s."""
     from kdfem.scenes.braid import shoulder_flip
 
     sc = scene_contact
-    sys_, h = sc.system, sc.step_s
-    est = sys_.automatic_window(sc.joints, step_s=h)
-    eps, window = float(est.epsilon_m), float(est.window_s)
-    F = np.array([2.72, 6.0])
-    H = CONTACT_PASS_SAMPLE_STEPS * h
-    tp = H * np.arange(int(round(F.max() / H)) + 1)
-    Xp = contact_pass(sys_, sc.joints, tp, step_s=h)
-    aw, events = contact_aware_windows(sys_, sc.joints, F, Xp, pass_times=tp, step_s=h, epsilon_m=eps)
-    aw2, _ = contact_aware_windows(sys_, sc.joints, F, Xp.copy(), pass_times=tp, step_s=h, epsilon_m=eps)
+    r = contact_runs
+    eps, window, F, tp, Xp = r["eps"], r["window"], r["frames"], r["pass_times"], r["pass_X"]
+    aw, aw2, events = r["aw"], r["aw2"], r["events"]
     assert np.array_equal(aw.steps, aw2.steps)
     flip, _ = shoulder_flip(sc, tp, Xp)
     assert flip is not None and 0.6 < flip < 1.0  # the cheap pass flips the braid too
@@ -281,12 +340,12 @@ def test_cheap_plan_windows_meet_epsilon_against_the_full_simulation(scene_conta
     start = F - aw.window_s
     assert start[0] <= flip - 0.2  # the draped braid remembers the flip
     assert start[1] > 2.5  # decayed: the window no longer reaches back to the drape, only into the second move
-    full = simulate_full(sys_, sc.joints, F, step_s=h)
+    full = r["full_frames"]
     _, front = shoulder_flip(sc, F, full)
     assert front[0] > 0 and front[1] < 0  # over the shoulder at 2.72 s, down the back after
-    aware = simulate_kd(sys_, sc.joints, F, aw.window_s, step_s=h)
+    aware = r["aware"]
     err = np.linalg.norm((aware - full).reshape(len(F), -1), axis=1)
     assert (err <= eps).all(), (err, eps)
-    fixed = simulate_kd(sys_, sc.joints, F[:1], window, step_s=h)
+    fixed = r["fixed"]
     assert F[0] - window > flip  # the fixed window starts after the flip …
     assert np.linalg.norm(fixed[0] - full[0]) > 10 * eps  # … and misses it by far more than ε

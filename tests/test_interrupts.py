@@ -26,8 +26,10 @@ def _interrupted_run(tmp: Path, delay_s: float) -> tuple[int, Path, float]:
     proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "kdfaces.cli", "run", str(SHOT), "--out",
                              str(out), "--export", "usd"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env={**os.environ, "KDFACES_PROGRESS_DELAY_S": "1000"})
-    time.sleep(delay_s)
-    proc.send_signal(signal.SIGINT)
+    try:  # a run that completes before the interrupt's moment is not waited for to the end of it
+        proc.wait(timeout=delay_s)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
     try:
         _, err = proc.communicate(timeout=120)
     except subprocess.TimeoutExpired:

@@ -331,15 +331,13 @@ def kd_states_by_start(system, trajectory, times, windows_s, *, step_s: float):
     every frame whose window reaches back past an undecayed contact event starts where that event's windows start
     (:func:`contact_aware_windows`) — so checking every frame of a shot costs about one simulation per event instead of
     one per frame. Scrubbing one frame still costs its own window (:func:`kdfaces.kd.simulate_kd`)."""
-    from kdfaces.kd import observe_kinematic, simulate_full, simulate_kd, window_steps
+    from kdfaces.kd import observe_kinematic, simulate_full, simulate_kd, time_steps
 
     t = np.asarray(times, dtype=np.float64)
     w = np.asarray(windows_s, dtype=np.float64)
-    if w.shape != t.shape:
-        raise KDInputError(f"windows_s: expected one window per time, shape {t.shape}, got {w.shape}")
     h = float(step_s)
     origin = float(getattr(trajectory, "start", 0.0))
-    steps = np.array([0 if x == 0 else window_steps(float(x), h) for x in w], dtype=np.int64)
+    steps = time_steps(system, trajectory, t, w, h)  # checks one window per time, as simulate_kd does
     start = np.round((t - origin) / h).astype(np.int64) - steps  # grid index of each window's start
     out = [None] * len(t)
     still = np.flatnonzero(steps == 0)

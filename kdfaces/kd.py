@@ -154,13 +154,19 @@ def step_windows(system, trajectory, t0: np.ndarray, n: int, h: float, progress=
     ``prepare``, ``initial_state``, ``n`` × ``step`` (``progress.update(B)`` after each) and ``observe``. A system
     may run its windows itself (method ``run_windows(trajectory, t0, n, h, progress)``, e.g. in threads), and use
     this for the plain case."""
+    return system.observe(step_states(system, trajectory, t0, n, h, progress))
+
+
+def step_states(system, trajectory, t0: np.ndarray, n: int, h: float, progress=None):
+    """:func:`step_windows` up to its last step: the batch's state after ``prepare``, ``initial_state`` and ``n``
+    × ``step``, not yet observed (for a system that overlaps its own observation work with the steps)."""
     _prepare(system, trajectory, t0, n, h)
     state = system.initial_state(trajectory, t0)
     for k in range(n):
         system.step(state, trajectory, t0 + k * h, h)
         if progress is not None:
             progress.update(len(t0))
-    return system.observe(state)
+    return state
 
 
 def time_steps(system, trajectory, times, window_s, step_s: float) -> np.ndarray:

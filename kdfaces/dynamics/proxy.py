@@ -35,8 +35,10 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import warp as wp
 
 from ..errors import KDInputError
+from ..motion.pose import PoseSampler, pose_base
 from ..motion.trajectory import restrict_trajectory, scan_trajectory
 from ..rig.proxy import (
     AUTO_PROXY_VERTICES,
@@ -53,10 +55,40 @@ __all__ = ["FaceProxy", "build_proxy", "embedding_matrix", "shape_features", "pr
            "AUTO_PROXY_VERTICES", "DECIMATE_SHAPE_WEIGHT"]
 
 
+@wp.kernel
+def carry_deviation(
+    lo: int,
+    carried: wp.array(dtype=wp.int64),
+    w_start: wp.array(dtype=wp.int32),
+    w_col: wp.array(dtype=wp.int32),
+    w_val: wp.array(dtype=wp.float64),
+    dev: wp.array2d(dtype=wp.vec3d),
+    xk: wp.array2d(dtype=wp.vec3d),
+):
+    """x_K + W (x_proxy − x_K,proxy) at carried vertex ``carried[lo + k]``, every time, in place of its x_K in
+    ``xk`` (T, N): its row of W (``w_start``, ``w_col``, ``w_val``: CSR over the P proxy vertices) times the
+    proxy's deviation ``dev`` (T, P) [m]."""
+    e = lo + wp.tid()
+    i = carried[e]
+    for t in range(xk.shape[0]):
+        acc = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+        for s in range(w_start[e], w_start[e + 1]):
+            acc = acc + w_val[s] * dev[t, w_col[s]]
+        xk[t, i] = xk[t, i] + acc
+
+
 class ProxyFaceSystem(FaceSystem):
     """A :class:`FaceSystem` on a proxy model (``model.embedding`` set: its region is the proxy's vertices, its
     clusters the proxy's) that observes the dense mesh: x_K + W (x_proxy − x_K,proxy) (module docstring).
-    ``FaceSystem(model)`` returns one for such a model; the arguments are :class:`FaceSystem`'s."""
+    ``FaceSystem(model)`` returns one for such a model; the arguments are :class:`FaceSystem`'s.
+
+    The dense x_K comes from :class:`~kdfaces.motion.pose.PoseSampler` (the rig's sparse shapes and skin in one
+    Warp kernel) for a kinematic trajectory of the rig and IKD's corrections of one, else from the trajectory
+    itself. A single state with two threads or more (the scrub path) steps on the calling thread while a worker
+    computes the dense x_K at the state's end time (it does not depend on the steps); a batch steps on every
+    thread (split by members), then splits the dense x_K and the embedding by vertices."""
+
+    split_one_state = False  # one state: its steps on one thread, the dense pose on another
 
     def __init__(self, model, **kwargs):
         if getattr(model, "embedding", None) is None or model.region is None:
@@ -67,42 +99,111 @@ class ProxyFaceSystem(FaceSystem):
         inside[model.region] = True
         carried = np.flatnonzero((np.diff(W.indptr) > 0) & ~inside)  # dense rows that move with the proxy
         self._carried = carried.astype(np.int64)
-        self._carry = sp.csr_matrix(W[carried])  # (E, P)
+        carry = sp.csr_matrix(W[carried])  # (E, P)
+        carry.sort_indices()
         self._deviating = np.union1d(model.region, carried).astype(np.int64)
-        self._dense_views = (None, [])  # (trajectory, [(vertex part, its restricted view)]) for observe's threads
+        d = self.device
+        self._carry = (wp.array(self._carried, dtype=wp.int64, device=d),
+                       wp.array(carry.indptr.astype(np.int32), dtype=wp.int32, device=d),
+                       wp.array(carry.indices.astype(np.int32), dtype=wp.int32, device=d),
+                       wp.array(carry.data.astype(np.float64), dtype=wp.float64, device=d))
+        self._sampler = None  # the PoseSampler of the last rig observed
+        self._dense_views = (None, [])  # (trajectory, [(vertex part, its restricted view)]): the generic x_K
 
     @property
     def proxy_vertices(self) -> np.ndarray:
         """(P,) int64: the dense vertices the proxy simulates (sorted)."""
         return np.asarray(self.model.region, dtype=np.int64)
 
+    def run_windows(self, trajectory, t0, n: int, h: float, progress=None) -> np.ndarray:
+        """The KD protocol's batch (:func:`~kdfaces.kd.step_windows`), with a single state's dense x_K computed on
+        a worker while the calling thread steps it (class docstring); the same values as without the overlap."""
+        from ..kd import step_states, step_windows
+
+        t0 = np.atleast_1d(np.asarray(t0, dtype=np.float64))
+        sampler = self._pose_sampler(trajectory)
+        if self._workers is None or len(t0) != 1 or n == 0 or sampler is None:
+            return step_windows(self, trajectory, t0, n, h, progress)
+        times = t0 + n * h
+        xk = np.empty((1, self.model.num_vertices, 3))
+        pose = sampler.launch(trajectory, times, xk)[0]  # host inputs now: the worker then runs the kernel only
+        box = []
+        self._workers.run([lambda: box.append(step_states(self, trajectory, t0, n, h, progress)), pose])
+        return self._observe(box[0], (trajectory, times, xk))
+
     def observe(self, state) -> np.ndarray:
         """Dense vertex positions of every member [m], (B, N, 3) float64: the proxy's vertices from the state, the
-        carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64, the trajectory's own
-        values). One pass of x_K over the N vertices per member (blend + skin; with several threads each evaluates
-        a contiguous part of the vertices, the rows of the same evaluation) and one sparse product."""
+        carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64). One pass of x_K over
+        the N vertices per member and one pass over the carried vertices' rows of W, each split over the threads
+        by vertices (every vertex's arithmetic is the same however it is split)."""
+        return self._observe(state, None)
+
+    def _observe(self, state, kinematic) -> np.ndarray:
+        """:meth:`observe`, with ``kinematic`` = (trajectory, times, x_K (1, N, 3)) computed beforehand (used when
+        they are the state's trajectory and times, else computed here)."""
         self._check(state)
         positions = getattr(self, "_positions", None)  # the state in the region's order, however it is kept
         x = positions(state) if positions is not None else np.concatenate([ch.x.numpy() for ch in state.chunks])
         traj = state.bake.trajectory if state.bake is not None else state.trajectory
         t = state.start_times + state.steps * (state.bake.h if state.bake is not None else 0.0)
-        region, carried = self.proxy_vertices, self._carried
-        p = len(region)
+        region = self.proxy_vertices
         out = []
         for i in range(0, len(t), 32):
-            xk = self._dense_kinematic(traj, t[i:i + 32])  # x_K of every vertex, (b, N, 3)
+            if kinematic is not None and kinematic[0] is traj and np.array_equal(kinematic[1], t[i:i + 32]):
+                xk = kinematic[2]
+            else:
+                xk = self._dense_kinematic(traj, t[i:i + 32])  # x_K of every vertex, (b, N, 3)
             xp = x[i:i + 32].astype(np.float64)
-            if len(carried):
-                d = xp - xk[:, region]
-                b = len(d)
-                xk[:, carried] += (self._carry @ d.transpose(1, 0, 2).reshape(p, 3 * b)).reshape(-1, b, 3) \
-                    .transpose(1, 0, 2)
+            if len(self._carried):
+                self._embed(xp - xk[:, region], xk)
             xk[:, region] = xp
             out.append(xk)
         return out[0] if len(out) == 1 else np.concatenate(out)
 
+    def _parts(self, runs) -> None:
+        """Run the callables ``runs`` on the threads (one each), or in turn on this one."""
+        if len(runs) > 1 and self._workers is not None:
+            self._workers.run(runs)
+        else:
+            for run in runs:
+                run()
+
+    def _embed(self, deviation: np.ndarray, xk: np.ndarray) -> None:
+        """Carried rows of ``xk`` (b, N, 3) float64 (x_K) += W ``deviation`` (b, P, 3) [m] (x_proxy − x_K,proxy)."""
+        d = self.device
+        dev_w = wp.array(deviation, dtype=wp.vec3d, device=d)
+        xk_w = wp.array(xk, dtype=wp.vec3d, device=d, copy=False) if d.is_cpu else wp.array(xk, dtype=wp.vec3d,
+                                                                                             device=d)
+        bounds = np.linspace(0, len(self._carried), self.threads + 1).astype(np.int64)
+
+        def part(lo: int, hi: int):
+            def run():
+                if hi > lo:
+                    wp.launch(carry_deviation, dim=hi - lo, inputs=[lo, *self._carry, dev_w, xk_w], device=d)
+            return run
+
+        self._parts([part(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])])
+        if not d.is_cpu:
+            xk[:] = xk_w.numpy()
+
+    def _pose_sampler(self, trajectory):
+        """The :class:`PoseSampler` of ``trajectory``'s rig when it evaluates it (kept for the next call), else
+        None."""
+        chain = pose_base(trajectory)
+        if chain is None or chain[0].rig.num_vertices != self.model.num_vertices:
+            return None
+        rig = chain[0].rig
+        if self._sampler is None or self._sampler.rig is not rig:
+            self._sampler = PoseSampler(rig, self.device)
+        return self._sampler
+
     def _dense_kinematic(self, trajectory, times: np.ndarray) -> np.ndarray:
         """x_K of every vertex at ``times`` (b,) [s] → (b, N, 3) float64, split over the threads by vertices."""
+        sampler = self._pose_sampler(trajectory)
+        if sampler is not None:
+            out = np.empty((len(times), self.model.num_vertices, 3))
+            self._parts(sampler.launch(trajectory, times, out, self.threads if self._workers is not None else 1))
+            return out
         workers = getattr(self, "_workers", None)
         if workers is None or self.threads < 2:
             return np.array(scan_trajectory(trajectory, times, 0)[0])

@@ -304,6 +304,9 @@ class FaceSystem:
     #: The class FaceSystem(model) builds for a model with a proxy (``model.embedding``, #29):
     #: :class:`~kdfaces.dynamics.proxy.ProxyFaceSystem`, registered by its module (the package imports it).
     proxy_system: type | None = None
+    #: Whether a single state (the scrub path) is split by vertices over the threads; a subclass that keeps the
+    #: other threads busy with work of its own meanwhile (the proxy's dense pose) steps it on one.
+    split_one_state: bool = True
 
     def __new__(cls, model=None, *args, **kwargs):
         if cls is FaceSystem and getattr(model, "embedding", None) is not None and FaceSystem.proxy_system:
@@ -490,7 +493,7 @@ class FaceSystem:
         fused = self.kernels == "fused"
         threads = self.threads if self._workers is not None else 1
         # one state and several threads: split its vertices; a batch: split its members
-        parts = threads if (fused and B == 1 and threads > 1) else 1
+        parts = threads if (fused and B == 1 and threads > 1 and self.split_one_state) else 1
         partition = self._partition(parts) if fused else None
         slots = partition.slots if fused else self._clusters.num_clusters
         d = self.device

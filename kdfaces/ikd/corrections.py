@@ -159,7 +159,7 @@ class CorrectedTrajectory:
                                f"{tuple(self.state_shape)}")
 
     def __getattr__(self, name):  # start, end, fps, frame_times, rig, skeleton, … (static data of the base)
-        if name in ("base", "correction", "bump", "_token", "joints", "scan"):
+        if name in ("base", "correction", "bump", "_token", "joints", "scan", "pose_inputs"):
             # ``joints`` of a corrected face trajectory would silently drop the correction
             raise AttributeError(name)
         return getattr(self.base, name)
@@ -185,6 +185,13 @@ class CorrectedTrajectory:
         :meth:`scan` is the same call: IKD sweeps re-read the same base samples around the constraint times with a
         new f each time, so even one-off passes over a corrected trajectory go through the base's sample cache."""
         out = list(self.base.evaluate(times, order))
+        self.add_terms(out, times, order)
+        return tuple(out)
+
+    def add_terms(self, out: list, times, order: int) -> None:
+        """Add f and the trial bump (and their derivatives) at ``times`` (T,) to the base's ``order + 1`` arrays
+        ``out`` (T, *state_shape), in place of the list's items (a pose evaluated elsewhere, e.g. by
+        :class:`~kdfaces.motion.pose.PoseSampler`, is corrected by the same terms in the same order)."""
         if self.correction is not None:
             for k, fk in enumerate(self.correction.evaluate(times, order)):
                 out[k] = out[k] + fk
@@ -197,7 +204,6 @@ class CorrectedTrajectory:
                 phi = phi / slot.basis.evaluate([slot.time_s], 2)[2, 0]
             for k in range(order + 1):
                 out[k] = out[k] + phi[k].reshape(-1, *([1] * e.ndim)) * e
-        return tuple(out)
 
     def scan(self, times, order: int = 2):
         """:meth:`evaluate` (a one-off pass, see :func:`~kdfaces.motion.scan_trajectory`; it must never fall

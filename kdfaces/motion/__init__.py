@@ -1,5 +1,5 @@
 """Motion: keyframe curves, joint animation (with root motion), inverse kinematics on joint chains, and the
-kinematic trajectory x_K(t) of a rig under an animation."""
+kinematic trajectory x_K(t) of a rig under an animation (and its dense pose in one Warp kernel, PoseSampler)."""
 
 from .curves import INTERPOLATIONS, KeyframeCurve
 from .ik import (
@@ -15,9 +15,10 @@ from .ik import (
     solve_ik,
 )
 from .joints import JointDrive, JointTrajectory, SkeletonAnimation, joint_frames, root_translation
+from .pose import PoseSampler
 from .trajectory import FaceAnimation, KinematicTrajectory, ShapeTrack, scan_trajectory
 
 __all__ = ["INTERPOLATIONS", "KeyframeCurve", "JointDrive", "SkeletonAnimation", "JointTrajectory", "joint_frames",
            "root_translation", "FaceAnimation", "KinematicTrajectory", "ShapeTrack", "NECK_CHAIN", "PointTarget",
            "LookAtTarget", "IKResult", "IKUnreachableError", "chain_frames", "point_jacobian", "direction_jacobian",
-           "solve_ik", "ik_solve", "scan_trajectory"]
+           "solve_ik", "ik_solve", "scan_trajectory", "PoseSampler"]

@@ -525,27 +525,44 @@ class KinematicTrajectory:
         """x_K at ``times`` (T,) [s] → (T, N, 3) [m]."""
         return self.evaluate(times, order=0)[0]
 
+    def _pose_terms(self, t, order: int):
+        """What x_K at ``t`` (T,) [s] is made of: the shape weights and derivatives (``order + 1`` arrays (T, K),
+        through in-betweens), the joint transforms' triplet (T, J, 4, 4) for LBS or None (no skeleton drives the
+        rig), and the root translation's triplet (T, 3) [m] or None."""
+        w = self.weights(t, order)
+        skel = self.rig.skeleton
+        G = None
+        if self._joint_override:
+            G = joint_transforms(skel, self._joints.evaluate(t, 2))
+        elif skel is not None and self.animation.skeleton.drives:
+            G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
+        r = self.animation.skeleton.root_translation(t, 2) if self.animation.skeleton.root is not None else None
+        return w, G, r
+
+    def pose_inputs(self, times):
+        """The inputs of x_K at ``times`` (T,) [s] without derivatives, for an evaluator of the rig's pose elsewhere
+        (:class:`~kdfaces.motion.pose.PoseSampler`): the shape weights (T, K), the joint world transforms
+        (T, J, 4, 4) or None, the root translation (T, 3) [m] or None — the values :meth:`evaluate` uses."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        check_finite(t, "trajectory times")
+        w, G, r = self._pose_terms(t, 0)
+        return w[0], None if G is None else G[0], None if r is None else r[0]
+
     def _evaluate_chunk(self, t, order: int = 2, rows: _RigRows | None = None):
         """x_K, ẋ_K, ẍ_K at ``t``; derivatives above ``order`` are not computed (None). ``rows``: the vertex rows to
         evaluate (every vertex when None): the blend reads their columns of the deltas and LBS their skin weights,
         the same products per row as the full evaluation (the tests hold the two to float64 round-off; with
         OpenBLAS they are bit for bit the same)."""
-        w = self.weights(t, order)
+        w, G, r = self._pose_terms(t, order)
         blend = self.rig if rows is None else rows
         y = blend.blend(w[0])
         dy = blend.blend_offsets(w[1]) if order >= 1 else None
         ddy = blend.blend_offsets(w[2]) if order >= 2 else None
-        skel = self.rig.skeleton if rows is None else rows.skeleton
-        if self._joint_override:
-            G = joint_transforms(skel, self._joints.evaluate(t, 2))
-            y, dy, ddy = skin(skel, G, y, dy, ddy)
-        elif skel is not None and self.animation.skeleton.drives:
-            G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
-            y, dy, ddy = skin(skel, G, y, dy, ddy)
+        if G is not None:
+            y, dy, ddy = skin(self.rig.skeleton if rows is None else rows.skeleton, G, y, dy, ddy)
         if rows is not None:
             y, dy, ddy = rows.expand(y, dy, ddy)
-        if self.animation.skeleton.root is not None:  # root motion moves every vertex, skinned or not
-            r = self.animation.skeleton.root_translation(t, 2)
+        if r is not None:  # root motion moves every vertex, skinned or not
             y = y + r[0][:, None]
             dy = None if dy is None else dy + r[1][:, None]
             ddy = None if ddy is None else ddy + r[2][:, None]

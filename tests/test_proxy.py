@@ -73,6 +73,40 @@ def test_the_proxy_is_a_vertex_subset_with_an_exact_embedding(dense_rig, demo):
     assert model.num_simulated == len(proxy) and model.clusters.num_clusters > 0
 
 
+def test_the_proxys_clusters_are_the_dense_clusters_restricted(dense_rig, demo):
+    from kdfaces.defaults import CLUSTER_RINGS
+    from kdfaces.dynamics.model import _mean_edge
+
+    _, dense, model = demo
+
+    def member_sets(clusters):
+        return [frozenset(clusters.members[a:b].tolist()) for a, b in zip(clusters.offsets[:-1],
+                                                                          clusters.offsets[1:], strict=True)]
+
+    proxy = frozenset(model.region.tolist())
+    ours = member_sets(model.clusters)
+    assert len(set(ours)) == len(ours)  # no cluster twice
+    # members are proxy vertices only, and every proxy vertex is in a cluster (has a shape-matching goal)
+    assert frozenset().union(*ours) == proxy
+    # every dense cluster with three or more proxy members, restricted to the proxy, is one of the proxy's ...
+    restricted = {s for s in (c & proxy for c in member_sets(dense.clusters)) if len(s) >= 3}
+    assert restricted <= set(ours)
+    # ... and the others are the proxy's own ring clusters (rings scaled by the mean edge ratio, "cover" centres),
+    # each holding a vertex the restricted clusters leave out
+    covered = frozenset().union(*restricted)
+    rest = [s for s in ours if s not in restricted]
+    assert 0 < len(rest) < len(restricted) and all(s - covered for s in rest)
+    rings = max(1, round(CLUSTER_RINGS * _mean_edge(dense_rig.neutral, dense_rig.faces)
+                         / _mean_edge(dense_rig.neutral, model.proxy_faces)))
+    own = FaceModel.create(dense_rig.neutral, model.proxy_faces, region=model.region, rings=rings,
+                           shape_matching_alpha=model.shape_matching_alpha)
+    assert set(rest) <= set(member_sets(own.clusters))
+    # shape matching off: no clusters, as on the dense model
+    px = FaceProxy(vertices=model.region, faces=np.searchsorted(model.region, model.proxy_faces),
+                   weights=model.embedding)
+    assert FaceModel.from_rig(dense_rig, proxy=px, shape_matching_alpha=0.0).clusters.num_clusters == 0
+
+
 def test_the_shape_space_fit_is_the_closest_point_of_the_triangle():
     from kdfaces.rig.proxy import _simplex_fit
 
@@ -175,13 +209,14 @@ def _accuracy(traj, dense, model, times):
     return err, dev
 
 
-#: The proxy's error relative to ε. The issue asks for ε/2 on every frame; a 6k proxy of the 19k face reaches it on
-#: 99 % of the vertices, but not at the mouth corners and the chin, where the dense model's own 2-ring shape-matching
-#: clusters (a few mm across) resolve a deviation that changes by ~10 mm over a centimetre: measured there up to
-#: 1.1 ε interpolation (W) and 1.2–1.4 ε dynamics (the proxy's clusters group other vertices); on these frames
-#: 0.39–0.41 ε (99th percentile) and 1.18–1.41 ε in all (docs/dense-rigs.md). These bounds hold what is reached
-#: (the issue's ε/2 at the 99th percentile; 1.41 ε with 20 % margin), so that a regression fails.
-P99_FRACTION, MAX_FRACTION = 0.5, 1.7
+#: The proxy's error relative to ε. The issue asks for ε/2 on every frame. The proxy's shape-matching clusters are
+#: the dense model's 2-ring clusters restricted to its vertices (its own ring clusters only where those leave
+#: vertices out: 271 of the 6k proxy's 6,043), so its dynamics follow the dense dynamics: on these frames (demo,
+#: capture) 0.58, 0.68 ε at the proxy's own vertices (1.18, 1.41 ε with the proxy's own ring clusters alone), 0.30,
+#: 0.30 ε at the 99th percentile (0.39, 0.41 ε) and 1.01, 0.85 ε in all (1.18, 1.41 ε), the largest now at carried
+#: vertices by the mouth corners, where W's interpolation meets a deviation that changes by ~10 mm over a
+#: centimetre (docs/dense-rigs.md). These bounds hold what is reached with ~20 % margin, so that a regression fails.
+P99_FRACTION, MAX_FRACTION, PROXY_VERTEX_FRACTION = 0.36, 1.2, 0.82
 
 
 @pytest.mark.parametrize("take", ["demo", "capture"])
@@ -203,6 +238,8 @@ def test_proxy_kd_states_are_close_to_the_dense_kd_states(take, demo, dense_rig,
     per_vertex = err.max(axis=0)
     assert np.quantile(per_vertex, 0.99) <= P99_FRACTION * eps, np.quantile(per_vertex, 0.99) / eps
     assert err.max() <= MAX_FRACTION * eps, err.max() / eps
+    # the dynamics alone: the proxy's own vertices, which W carries with the identity
+    assert err[:, model.region].max() <= PROXY_VERTEX_FRACTION * eps, err[:, model.region].max() / eps
 
 
 def test_ikd_on_the_proxy_meets_the_constraints_on_the_dense_mesh(dense_rig, demo):

@@ -256,13 +256,8 @@ class FaceModel:
         t = _per_vertex(settle_time, n, "settle_time_s")
         kp, kd = gains_from_settle_time(t, damping_ratio=damping_ratio)
         reg = _region(region, n)
-        if reg is None:
-            clusters = ring_clusters(f, n, rings=rings, centers=cluster_centers) if alpha > 0 and len(f) \
-                else Clusters.empty(n)
-            vr = v
-        else:
-            clusters = _region_clusters(f, n, reg, alpha, rings, cluster_centers)
-            vr = v[reg]
+        clusters = _model_clusters(f, n, reg, alpha, rings, cluster_centers)
+        vr = v if reg is None else v[reg]
         diameter = float(np.linalg.norm(vr.max(axis=0) - vr.min(axis=0))) if n else 0.0
         return cls(mass=m, settle_time_s=t, kp=kp, kd=kd, damping_ratio=float(damping_ratio), clusters=clusters,
                    shape_matching_alpha=float(alpha), damping_mode=damping, diameter_m=diameter, rotation=rotation,
@@ -294,6 +289,60 @@ class FaceModel:
         if proxy is None:
             return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
         return _proxy_model(cls, rig, region, proxy, kwargs)
+
+
+def _model_clusters(faces: np.ndarray, n: int, region: np.ndarray | None, alpha: float, rings: int,
+                    centers) -> Clusters:
+    """The shape-matching clusters :meth:`FaceModel.create` builds (over all ``n`` vertices): the ``rings``-rings
+    around ``centers`` of the mesh, or of the region's own triangles (:func:`_region_clusters`); none when α = 0."""
+    if region is None:
+        return ring_clusters(faces, n, rings=rings, centers=centers) if alpha > 0 and len(faces) else Clusters.empty(n)
+    return _region_clusters(faces, n, region, alpha, rings, centers)
+
+
+def _membership(clusters: Clusters, n: int) -> sp.csr_matrix:
+    """The (C, n) CSR membership matrix of ``clusters`` (ones where cluster c holds vertex i)."""
+    return sp.csr_matrix((np.ones(len(clusters.members), np.float32), clusters.members, clusters.offsets),
+                         shape=(clusters.num_clusters, n))
+
+
+def _unique_rows(m: sp.csr_matrix) -> sp.csr_matrix:
+    """``m`` without repeated rows (equal column sets; the first of each kept, in order): the rows' sorted column
+    indices, padded with −1, compared whole by :func:`numpy.unique`."""
+    m = sp.csr_matrix(m)
+    m.sort_indices()
+    lens = np.diff(m.indptr)
+    if not len(lens):
+        return m
+    pad = np.full((len(lens), int(lens.max())), -1, dtype=np.int64)
+    pad[np.repeat(np.arange(len(lens)), lens), np.arange(m.nnz) - np.repeat(m.indptr[:-1], lens)] = m.indices
+    first = np.unique(pad, axis=0, return_index=True)[1]
+    return m[np.sort(first)]
+
+
+def _proxy_clusters(dense: Clusters, own: Clusters, proxy: np.ndarray, n: int) -> Clusters:
+    """The proxy's shape-matching clusters: the dense model's clusters ``dense`` restricted to the ``proxy``
+    vertices, those with three or more proxy members kept (a cluster's rotation, the polar part of A_pq, Müller et
+    al. 2005 eq. 7–9, needs three non-collinear points), then, for the proxy vertices no kept cluster holds, the
+    proxy's own ring clusters ``own`` that hold at least one of them. All over the ``n`` dense vertices, members
+    in the proxy only, repeated clusters dropped.
+
+    Restricted, the proxy's clusters group the same vertices as the dense model's, so its goals (Müller eq. 10:
+    each vertex's mean over its clusters) are the dense goals read at the proxy. The fallback takes every own
+    cluster holding an uncovered vertex, not only those centred on one: an uncovered vertex whose "cover" clusters
+    are all centred on covered vertices would otherwise get no goal. A proxy much coarser than the dense clusters
+    (a 4k proxy of a 75k face: a third of its vertices) keeps few restricted clusters and moves mostly on its own.
+    """
+    inside = np.zeros(n, dtype=np.float32)
+    inside[proxy] = 1.0
+    restricted = (_membership(dense, n) @ sp.diags(inside)).tocsr()
+    restricted.eliminate_zeros()
+    restricted = restricted[np.diff(restricted.indptr) >= 3]
+    covered = np.asarray(restricted.sum(axis=0)).ravel() > 0
+    uncovered = (inside > 0) & ~covered
+    extra = _membership(own, n)
+    extra = extra[np.asarray(extra @ uncovered.astype(np.float32)).ravel() > 0]
+    return Clusters.from_matrix(_unique_rows(sp.vstack([restricted, extra], format="csr")))
 
 
 def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float, rings: int,
@@ -360,15 +409,23 @@ def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
         m = _per_vertex(mass, n, "mass")
     m = np.array(m, dtype=np.float64)
     m[px.vertices] = px.weights.T @ m
-    # shape-matching clusters as wide on the proxy as on the dense mesh: ``rings`` counts dense mesh rings, scaled by
-    # the ratio of the meshes' mean edge lengths (a 2-ring dense cluster is a 1-ring cluster of a 3× coarser proxy)
+    # the proxy's own ring clusters (the fallback of _proxy_clusters) as wide on the proxy as on the dense mesh:
+    # ``rings`` counts dense mesh rings, scaled by the ratio of the meshes' mean edge lengths (a 2-ring dense cluster
+    # is a 1-ring cluster of a 3× coarser proxy)
     rings = int(kwargs.pop("rings", defaults.CLUSTER_RINGS))
     kwargs["rings"] = max(1, int(round(rings * _mean_edge(rig.neutral, rig.faces)
                                        / _mean_edge(rig.neutral, px.dense_faces))))
     model = cls.create(rig.neutral, px.dense_faces, mass=m, region=px.vertices, **kwargs)
+    clusters = model.clusters
+    if clusters.num_clusters:  # shape matching on (α > 0): the dense model's clusters, restricted to the proxy
+        dense = _model_clusters(rig.faces, n, reg, model.shape_matching_alpha, rings,
+                                kwargs.get("cluster_centers", "cover"))
+        clusters = _proxy_clusters(dense, clusters, px.vertices, n)
     v = rig.neutral if reg is None else rig.neutral[reg]  # ε and the diameter of §5.2: the dense face's
     diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    return dataclasses.replace(model, diameter_m=diameter, embedding=px.weights, proxy_faces=px.dense_faces)
+    # clusters is FaceModel's only cluster-derived field (the systems build their cluster arrays from it)
+    return dataclasses.replace(model, clusters=clusters, diameter_m=diameter, embedding=px.weights,
+                               proxy_faces=px.dense_faces)
 
 
 FaceModel.__init__ = renamed_kwargs(diameter="diameter_m")(FaceModel.__init__)

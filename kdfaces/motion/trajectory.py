@@ -533,9 +533,9 @@ class KinematicTrajectory:
         skel = self.rig.skeleton
         G = None
         if self._joint_override:
-            G = joint_transforms(skel, self._joints.evaluate(t, 2))
+            G = joint_transforms(skel, self._joints.evaluate(t, 2), order=order)
         elif skel is not None and self.animation.skeleton.drives:
-            G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2))
+            G = joint_transforms(skel, self.animation.skeleton.joint_angles(skel, t, 2), order=order)
         r = self.animation.skeleton.root_translation(t, 2) if self.animation.skeleton.root is not None else None
         return w, G, r
 

@@ -181,8 +181,9 @@ def head_chain_skeleton(names, parents, positions, weights, *, where: str = "ske
                     weights=np.clip(out_w, 0.0, None))
 
 
-def _axis_rotation(axis: int, th, dth, ddth):
-    """R(θ(t)) about a coordinate axis and its first and second time derivatives, each (T, 3, 3)."""
+def _axis_rotation(axis: int, th, dth, ddth, n: int = 3):
+    """R(θ(t)) about a coordinate axis and its first and second time derivatives, each (T, 3, 3) (the first ``n``
+    of the three)."""
     T = len(th)
     K = np.zeros((3, 3))
     a, b = [(1, 2), (2, 0), (0, 1)][axis]
@@ -190,34 +191,46 @@ def _axis_rotation(axis: int, th, dth, ddth):
     K2 = K @ K
     s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
     R = np.eye(3) + s * K + (1 - c) * K2
-    R_th = c * K + s * K2
-    R_thth = -s * K + c * K2
-    dth, ddth = dth[:, None, None], ddth[:, None, None]
     assert R.shape == (T, 3, 3)
+    if n == 1:
+        return (R,)
+    R_th = c * K + s * K2
+    dth = dth[:, None, None]
+    if n == 2:
+        return R, R_th * dth
+    R_thth = -s * K + c * K2
+    ddth = ddth[:, None, None]
     return R, R_th * dth, R_thth * dth**2 + R_th * ddth
 
 
 def _mul(A, B):
-    """Product of two derivative triplets of (…, n, n) matrices."""
+    """Product of two derivative tuples (value, d/dt[, d²/dt²]) of (…, n, n) matrices, as long as they are."""
+    if len(A) == 1:
+        return (A[0] @ B[0],)
+    if len(A) == 2:
+        (a, da), (b, db) = A, B
+        return a @ b, da @ b + a @ db
     a, da, dda = A
     b, db, ddb = B
     return a @ b, da @ b + a @ db, dda @ b + 2 * (da @ db) + a @ ddb
 
 
-def joint_transforms(skeleton: Skeleton, angles, root=None):
+def joint_transforms(skeleton: Skeleton, angles, root=None, order: int = 2):
     """World transforms of every joint, as a triplet of (T, J, 4, 4) arrays (value, d/dt, d²/dt²).
 
     ``angles`` is the triplet from :meth:`SkeletonAnimation.joint_angles` (order 2). ``root``, optional, is the
     triplet (r, ṙ, r̈) of a root translation [m, m/s, m/s²], each (T, 3), applied to every joint: G_j ← T(r) G_j
-    (root motion, e.g. walking; it moves the whole character and is not a joint angle).
+    (root motion, e.g. walking; it moves the whole character and is not a joint angle). ``order`` < 2 computes the
+    derivatives up to that order only (the others are None); the values are the same bits either way.
     """
     th, dth, ddth = angles
     T, J, _ = th.shape
+    n = int(order) + 1
     G = [None] * J
     for j in range(J):
-        R = (np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3, 3)), np.zeros((T, 3, 3)))
+        R = (np.broadcast_to(np.eye(3), (T, 3, 3)), np.zeros((T, 3, 3)), np.zeros((T, 3, 3)))[:n]
         for c, axis in enumerate(_AXES):
-            R = _mul(R, _axis_rotation(axis, th[:, j, c], dth[:, j, c], ddth[:, j, c]))
+            R = _mul(R, _axis_rotation(axis, th[:, j, c], dth[:, j, c], ddth[:, j, c], n))
         p = skeleton.positions[j]
         L = []
         for k, Rk in enumerate(R):
@@ -229,12 +242,12 @@ def joint_transforms(skeleton: Skeleton, angles, root=None):
             L.append(M)
         parent = skeleton.parents[j]
         G[j] = tuple(L) if parent < 0 else _mul(G[parent], tuple(L))
-    out = tuple(np.stack([g[k] for g in G], axis=1) for k in range(3))
+    out = tuple(np.stack([g[k] for g in G], axis=1) for k in range(n))
     if root is not None:
-        for k in range(3):
+        for k in range(n):
             r = np.asarray(root[k], dtype=np.float64).reshape(T, 1, 3)
             out[k][:, :, :3, 3] += r  # T(r)·G: the translation column only (rotations are unchanged)
-    return out
+    return out + (None,) * (3 - n)
 
 
 def skin(skeleton: Skeleton, transforms, y, dy=None, ddy=None):

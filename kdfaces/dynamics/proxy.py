@@ -22,8 +22,10 @@ W
     moving region get zero rows: they follow x_K exactly.
 
 The dynamics of the proxy keep what matters: the dense model's settle-time map and gains read at the proxy's
-vertices, lumped masses Wᵀm (the dense mass it stands for, so the total mass is kept), shape matching on ring
-clusters of the proxy's own triangles, and the dense region's diameter (ε of §5.2 is the dense face's).
+vertices, lumped masses Wᵀm (the dense mass it stands for, so the total mass is kept), shape matching (Müller et al.
+2005) on the dense model's own clusters restricted to the proxy's vertices (those keeping three or more; the proxy's
+own ring clusters for the vertices none of them covers: ``kdfaces.dynamics.model._proxy_clusters``), and the dense
+region's diameter (ε of §5.2 is the dense face's).
 
 :class:`ProxyFaceSystem` is a :class:`~kdfaces.dynamics.FaceSystem` on the proxy (its region is the proxy's vertex
 subset, so the bake, the kernels and the threads are the face system's own) whose ``observe`` returns the dense

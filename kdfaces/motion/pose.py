@@ -137,7 +137,8 @@ class PoseSampler:
                      dtype=wp.vec3d, device=dev)
         dst = wp.array(out, dtype=wp.vec3d, device=dev, copy=False) if dev.is_cpu else \
             wp.empty((T, n), dtype=wp.vec3d, device=dev)
-        terms = [_terms(tr, t) for tr in reversed(extra)]  # host arrays (T, N, 3) to add, innermost first
+        # host arrays (T, N, 3) to add, innermost layer first (a layer with no f and no bump adds nothing)
+        terms = [_terms(tr, t) for tr in reversed(extra) if tr.correction is not None or tr.bump is not None]
         bounds = np.linspace(0, n, max(1, int(parts)) + 1).astype(np.int64)
 
         def part(lo: int, hi: int):

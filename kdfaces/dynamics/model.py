@@ -377,7 +377,7 @@ def _mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
 def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
     """:meth:`FaceModel.from_rig` with a proxy (``proxy``: "auto", a vertex count or a FaceProxy; "auto" below
     the threshold: the dense model)."""
-    from ..rig.proxy import AUTO_PROXY_VERTICES, FaceProxy, build_proxy
+    from ..rig.proxy import AUTO_PROXY_VERTICES, FaceProxy, build_proxy, settle_time_features
 
     n = rig.num_vertices
     reg = _region(region, n)
@@ -396,7 +396,10 @@ def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
         if px.weights.shape[0] != n:
             raise KDInputError(f"proxy: built for a rig of {px.weights.shape[0]} vertices, this one has {n}")
     else:
-        px = build_proxy(rig.neutral, rig.faces, simulated, proxy, rig.deltas)
+        # the settle-time map is a coordinate of the proxy's shape space: the deviation W carries follows the gains
+        # it sets (none for a scalar settle time)
+        settle = kwargs.get("settle_time_s", kwargs.get("settle_time"))
+        px = build_proxy(rig.neutral, rig.faces, simulated, proxy, rig.deltas, settle_time_features(settle, n))
     kwargs = dict(kwargs)
     mass = kwargs.pop("mass", None)
     density = kwargs.pop("areal_density_kg_m2", kwargs.pop("areal_density", defaults.AREAL_DENSITY_KG_M2))

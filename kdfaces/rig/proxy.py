@@ -12,7 +12,8 @@ import scipy.sparse as sp
 from ..errors import KDInputError
 
 __all__ = ["FaceProxy", "build_proxy", "embedding_matrix", "shape_features", "proxy_rig", "MIN_PROXY_VERTICES",
-           "AUTO_PROXY_VERTICES", "DECIMATE_SHAPE_WEIGHT", "EMBED_NEIGHBOURS", "EMBED_COMPONENTS"]
+           "AUTO_PROXY_VERTICES", "DECIMATE_SHAPE_WEIGHT", "EMBED_NEIGHBOURS", "EMBED_COMPONENTS",
+           "SETTLE_TIME_FEATURE_M_PER_S", "settle_time_features"]
 
 #: The proxy's vertex count when ``FaceModel.from_rig(proxy="auto")`` turns it on: about the default head's (4.8k
 #: vertices, 5 ms per KD state on one core), where its dynamics are resolved; a 75k face then costs the proxy's steps
@@ -55,36 +56,68 @@ class FaceProxy:
 EMBED_NEIGHBOURS = 6
 #: Shape space is reduced to this many principal components for the neighbour search and the fit.
 EMBED_COMPONENTS = 24
+#: Metres of shape space per second of settle time (:func:`settle_time_features`): the settle-time map as one more
+#: coordinate, weighted by how much the deviation x − x_K changes per second of settle time against how much it
+#: changes per metre of shape space. Along the 19k demo face's edges where the deviation changes fastest (every 5th
+#: frame), a least-squares fit of its change to the edge's settle-time and shape-space differences gives 0.34 m/s on
+#: the top 1 % of edges (18 mm of deviation per second, 54 mm per metre) and 0.59 m/s on the top 10 %; between
+#: them, 0.4 m/s gave the smallest proxy errors of the values swept (0.15–1 m/s). On the demo it lowers W's own
+#: interpolation error (the dense deviation from its proxy rows) from 1.02 ε to 0.71 ε at 19k → 6k and from 1.35 ε
+#: to 0.86 ε at 75k → 4k (docs/dense-rigs.md).
+SETTLE_TIME_FEATURE_M_PER_S = 0.4
 
 
-def shape_features(neutral: np.ndarray, deltas: np.ndarray | None) -> np.ndarray:
+def settle_time_features(settle_time_s, n: int) -> np.ndarray | None:
+    """The settle-time map as an extra coordinate of shape space, (n, 1) [m] (:data:`SETTLE_TIME_FEATURE_M_PER_S`
+    × t̂), for :func:`build_proxy`'s ``features``; None for a scalar or constant map (one value everywhere moves
+    no vertex nearer to another) or none given. The PD gains follow t̂ (On the Beat §4.1, eq. 4), so where the map
+    changes fast so does the deviation they leave: vertices of different settle times are kept apart."""
+    if settle_time_s is None:
+        return None
+    t = np.asarray(settle_time_s, dtype=np.float64)
+    if t.shape != (n,) or not np.isfinite(t).all() or np.ptp(t) == 0.0:
+        return None
+    return SETTLE_TIME_FEATURE_M_PER_S * t[:, None]
+
+
+def shape_features(neutral: np.ndarray, deltas: np.ndarray | None, features: np.ndarray | None = None) -> np.ndarray:
     """Each vertex as a point of shape space (N, D) [m]: its rest position and its displacement in every blend shape,
-    reduced to the :data:`EMBED_COMPONENTS` principal directions. Two vertices close at rest but moved apart by a
-    shape (upper and lower lip by the jaw, the eyelids by a blink) are far apart here."""
+    reduced to the :data:`EMBED_COMPONENTS` principal directions, then the extra coordinates ``features`` (N, E) [m]
+    as given (e.g. :func:`settle_time_features`). Two vertices close at rest but moved apart by a shape (upper and
+    lower lip by the jaw, the eyelids by a blink) are far apart here."""
     x = np.asarray(neutral, dtype=np.float64)
     parts = [x]
     if deltas is not None and len(deltas):
         parts.append(np.asarray(deltas, dtype=np.float64).transpose(1, 0, 2).reshape(len(x), -1))
     f = np.concatenate(parts, axis=1)
     f -= f.mean(axis=0)
-    if f.shape[1] <= EMBED_COMPONENTS:
+    if f.shape[1] > EMBED_COMPONENTS:
+        _, vecs = np.linalg.eigh(f.T @ f)  # principal directions: the covariance's leading eigenvectors
+        f = f @ vecs[:, ::-1][:, :EMBED_COMPONENTS]
+    if features is None:
         return f
-    _, vecs = np.linalg.eigh(f.T @ f)  # principal directions: the covariance's leading eigenvectors
-    return f @ vecs[:, ::-1][:, :EMBED_COMPONENTS]
+    e = np.asarray(features, dtype=np.float64)
+    e = e[:, None] if e.ndim == 1 else e
+    if e.ndim != 2 or e.shape[0] != len(x) or not np.isfinite(e).all():
+        raise KDInputError(f"proxy features: expected finite ({len(x)}, E) metres, got shape {np.shape(features)}")
+    return np.hstack([f, e - e.mean(axis=0)])
 
 
 def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, proxy_faces: np.ndarray,
-                     rows: np.ndarray, deltas: np.ndarray | None = None) -> sp.csr_matrix:
+                     rows: np.ndarray, deltas: np.ndarray | None = None,
+                     features: np.ndarray | None = None) -> sp.csr_matrix:
     """W (N, P) CSR for the dense vertices ``rows`` (indices into the N ``dense_vertices`` (N, 3) [m]), zero rows
     elsewhere; proxy vertices (``proxy_vertices`` (P,), indices into N) get identity rows.
 
     A dense vertex's row is fitted in shape space (:func:`shape_features` with the blend-shape ``deltas``
-    (K, N, 3) [m]): among the triangles (``proxy_faces`` (G, 3), indices into the P proxy vertices) around its
-    :data:`EMBED_NEIGHBOURS` nearest proxy vertices there, the convex combination of one triangle's corners whose
-    rest position *and shape displacements* are nearest to the vertex's own (the closest point of the triangle in
-    shape space, ``_simplex_fit``). The deviation x − x_K the proxy carries follows the shapes (their motion, and
-    gains that soft-tissue maps derive from their displacements), so weights that reproduce the shapes'
-    displacements reproduce it too; with no shapes the fit is the closest point of the surface. (Nearest in space
+    (K, N, 3) [m] and the extra coordinates ``features`` (N, E) [m], e.g. the settle-time map): among the triangles
+    (``proxy_faces`` (G, 3), indices into the P proxy vertices) around its :data:`EMBED_NEIGHBOURS` nearest proxy
+    vertices there, the convex combination of one triangle's corners whose rest position *and shape displacements*
+    are nearest to the vertex's own (the closest point of the triangle in shape space, ``_simplex_fit``). The
+    deviation x − x_K the proxy carries follows the shapes (their motion, and gains that soft-tissue maps derive
+    from their displacements), so weights that reproduce the shapes' displacements reproduce it too; a settle-time
+    coordinate keeps the weights on corners of about the vertex's own settle time, whose gains (On the Beat §4.1, eq. 4)
+    leave about its deviation. With no shapes the fit is the closest point of the surface. (Nearest in space
     alone would embed an upper-lip vertex in the lower lip: their rest positions are a millimetre apart, their
     jaw-open displacements centimetres.)"""
     from scipy.spatial import cKDTree
@@ -98,7 +131,7 @@ def embedding_matrix(dense_vertices: np.ndarray, proxy_vertices: np.ndarray, pro
     rest = rows[own[rows] < 0]
     r_rows, r_cols, r_vals = [proxy_vertices], [np.arange(p)], [np.ones(p)]
     if len(rest):
-        feat = shape_features(v, deltas)
+        feat = shape_features(v, deltas, features)
         pfeat = feat[proxy_vertices]
         k = min(EMBED_NEIGHBOURS, p)
         _, near = cKDTree(pfeat).query(feat[rest], k=k)
@@ -171,13 +204,14 @@ def _simplex_fit(corners: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def build_proxy(vertices: np.ndarray, faces: np.ndarray, simulated: np.ndarray, target_vertices: int,
-                deltas: np.ndarray | None = None) -> FaceProxy:
+                deltas: np.ndarray | None = None, features: np.ndarray | None = None) -> FaceProxy:
     """A proxy of about ``target_vertices`` vertices for the dense mesh ``vertices`` (N, 3) [m], ``faces`` (F, 3),
     whose dynamics are simulated on the vertices ``simulated`` (an (N,) bool mask: the moving region, rigid parts
     excluded). The triangles with every corner simulated are decimated (libigl ``decimate``, shortest edges first
-    in shape space — rest position and :data:`DECIMATE_SHAPE_WEIGHT` × the blend-shape ``deltas`` (K, N, 3) [m] —
-    to 2·target faces), each surviving vertex snapped to the dense vertex it was born from; W embeds every simulated
-    vertex (:func:`embedding_matrix`)."""
+    in shape space — rest position and :data:`DECIMATE_SHAPE_WEIGHT` × the blend-shape ``deltas`` (K, N, 3) [m]
+    and the extra coordinates ``features`` (N, E) [m] (:func:`shape_features`; ``FaceModel.from_rig`` passes the
+    settle-time map, :func:`settle_time_features`) — to 2·target faces), each surviving vertex snapped to the dense
+    vertex it was born from; W embeds every simulated vertex in the same shape space (:func:`embedding_matrix`)."""
     import igl
 
     v = np.asarray(vertices, dtype=np.float64)
@@ -194,10 +228,11 @@ def build_proxy(vertices: np.ndarray, faces: np.ndarray, simulated: np.ndarray, 
     local = np.full(len(v), -1, dtype=np.int64)
     local[used] = np.arange(len(used))
     # edges are measured in shape space (rest position and, scaled by DECIMATE_SHAPE_WEIGHT, the blend-shape
-    # displacements): where the shapes deform the skin fast (lips, mouth corners, eyelids) edges are long and kept
+    # displacements and extra features): where the shapes deform the skin fast (lips, mouth corners, eyelids) or the
+    # settle-time map changes fast, edges are long and kept
     space = v[used]
-    if deltas is not None and len(deltas):
-        space = np.hstack([space, DECIMATE_SHAPE_WEIGHT * shape_features(v, deltas)[used]])
+    if (deltas is not None and len(deltas)) or features is not None:
+        space = np.hstack([space, DECIMATE_SHAPE_WEIGHT * shape_features(v, deltas, features)[used]])
     # V − E + F = χ: a triangle mesh has about twice as many faces as vertices
     _, g, _, birth = igl.decimate(np.ascontiguousarray(space), np.ascontiguousarray(local[sub], dtype=np.int32),
                                   int(2 * target_vertices))
@@ -214,7 +249,7 @@ def build_proxy(vertices: np.ndarray, faces: np.ndarray, simulated: np.ndarray, 
     if len(np.unique(proxy_vertices)) != len(proxy_vertices) or len(proxy_vertices) < MIN_PROXY_VERTICES:
         raise KDInputError(f"proxy: decimating the face's {len(used)} vertices gave {len(proxy_vertices)} distinct "
                            "ones; expected a manifold face surface")
-    W = embedding_matrix(v, proxy_vertices, proxy_faces, np.flatnonzero(sim), deltas)
+    W = embedding_matrix(v, proxy_vertices, proxy_faces, np.flatnonzero(sim), deltas, features)
     return FaceProxy(vertices=proxy_vertices, faces=proxy_faces, weights=W)
 
 

@@ -60,10 +60,11 @@ EMBED_COMPONENTS = 24
 #: coordinate, weighted by how much the deviation x − x_K changes per second of settle time against how much it
 #: changes per metre of shape space. Along the 19k demo face's edges where the deviation changes fastest (every 5th
 #: frame), a least-squares fit of its change to the edge's settle-time and shape-space differences gives 0.34 m/s on
-#: the top 1 % of edges (18 mm of deviation per second, 54 mm per metre) and 0.59 m/s on the top 10 %; between
-#: them, 0.4 m/s gave the smallest proxy errors of the values swept (0.15–1 m/s). On the demo it lowers W's own
-#: interpolation error (the dense deviation from its proxy rows) from 1.02 ε to 0.71 ε at 19k → 6k and from 1.35 ε
-#: to 0.86 ε at 75k → 4k (docs/dense-rigs.md).
+#: the top 1 % of edges (18 mm of deviation per second, 54 mm per metre) and 0.59 m/s on the top 10 %. Between
+#: them, 0.4 m/s gave the smallest 99th percentiles of the proxy's error of the values swept (0.15–1 m/s; its
+#: largest errors vary by about ±0.2 ε with the vertices the decimation happens to keep). On the demo it lowers W's
+#: own interpolation error (the dense deviation from its proxy rows) from 1.02 ε to 0.71 ε at 19k → 6k and from
+#: 1.35 ε to 0.86 ε at 75k → 4k (docs/dense-rigs.md).
 SETTLE_TIME_FEATURE_M_PER_S = 0.4
 
 

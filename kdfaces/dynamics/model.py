@@ -320,29 +320,26 @@ def _unique_rows(m: sp.csr_matrix) -> sp.csr_matrix:
     return m[np.sort(first)]
 
 
-def _proxy_clusters(dense: Clusters, own: Clusters, proxy: np.ndarray, n: int) -> Clusters:
+def _proxy_clusters(dense: Clusters, proxy: np.ndarray, n: int) -> Clusters:
     """The proxy's shape-matching clusters: the dense model's clusters ``dense`` restricted to the ``proxy``
     vertices, those with three or more proxy members kept (a cluster's rotation, the polar part of A_pq, Müller et
-    al. 2005 eq. 7–9, needs three non-collinear points), then, for the proxy vertices no kept cluster holds, the
-    proxy's own ring clusters ``own`` that hold at least one of them. All over the ``n`` dense vertices, members
-    in the proxy only, repeated clusters dropped.
+    al. 2005 eq. 7–9, needs three non-collinear points), over the ``n`` dense vertices, repeated clusters dropped.
 
     Restricted, the proxy's clusters group the same vertices as the dense model's, so its goals (Müller eq. 10:
-    each vertex's mean over its clusters) are the dense goals read at the proxy. The fallback takes every own
-    cluster holding an uncovered vertex, not only those centred on one: an uncovered vertex whose "cover" clusters
-    are all centred on covered vertices would otherwise get no goal. A proxy much coarser than the dense clusters
-    (a 4k proxy of a 75k face: a third of its vertices) keeps few restricted clusters and moves mostly on its own.
+    each vertex's mean over its clusters) are the dense goals read at the proxy. A proxy vertex that no kept
+    cluster holds has no goal and tracks x_K by its PD force alone: the dense clusters around it are finer than
+    the proxy (fewer than three of their members are proxy vertices), so the proxy cannot resolve their shape
+    matching, and clusters of the proxy's own triangles would couple vertices the dense model does not. Measured
+    (docs/dense-rigs.md): on the 75k face's 4k proxy a third of the proxy's vertices have no goal, and the error at
+    the proxy's vertices is 0.35 ε against 0.57 ε with the proxy's own ring clusters added for them (0.38 ε either
+    way on the 19k face's 6k proxy).
     """
     inside = np.zeros(n, dtype=np.float32)
     inside[proxy] = 1.0
     restricted = (_membership(dense, n) @ sp.diags(inside)).tocsr()
     restricted.eliminate_zeros()
     restricted = restricted[np.diff(restricted.indptr) >= 3]
-    covered = np.asarray(restricted.sum(axis=0)).ravel() > 0
-    uncovered = (inside > 0) & ~covered
-    extra = _membership(own, n)
-    extra = extra[np.asarray(extra @ uncovered.astype(np.float32)).ravel() > 0]
-    return Clusters.from_matrix(_unique_rows(sp.vstack([restricted, extra], format="csr")))
+    return Clusters.from_matrix(_unique_rows(restricted))
 
 
 def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float, rings: int,
@@ -366,12 +363,6 @@ def _region_clusters(faces: np.ndarray, n: int, region: np.ndarray, alpha: float
     cl = ring_clusters(sub, r, rings=rings, centers=centers)
     return Clusters.from_matrix(sp.csr_matrix((np.ones(len(cl.members), np.float32), region[cl.members], cl.offsets),
                                               shape=(cl.num_clusters, n)))
-
-
-def _mean_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Mean triangle edge length [m] of the mesh (each interior edge counted twice)."""
-    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
-    return float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).mean())
 
 
 def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
@@ -412,18 +403,17 @@ def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
         m = _per_vertex(mass, n, "mass")
     m = np.array(m, dtype=np.float64)
     m[px.vertices] = px.weights.T @ m
-    # the proxy's own ring clusters (the fallback of _proxy_clusters) as wide on the proxy as on the dense mesh:
-    # ``rings`` counts dense mesh rings, scaled by the ratio of the meshes' mean edge lengths (a 2-ring dense cluster
-    # is a 1-ring cluster of a 3× coarser proxy)
+    # shape matching on the dense model's own clusters, restricted to the proxy (_proxy_clusters): the model is
+    # built without clusters of its own triangles, then given those
+    alpha = kwargs.pop("shape_matching_alpha", kwargs.pop("alpha", defaults.SHAPE_MATCHING_ALPHA))
     rings = int(kwargs.pop("rings", defaults.CLUSTER_RINGS))
-    kwargs["rings"] = max(1, int(round(rings * _mean_edge(rig.neutral, rig.faces)
-                                       / _mean_edge(rig.neutral, px.dense_faces))))
-    model = cls.create(rig.neutral, px.dense_faces, mass=m, region=px.vertices, **kwargs)
-    clusters = model.clusters
-    if clusters.num_clusters:  # shape matching on (α > 0): the dense model's clusters, restricted to the proxy
-        dense = _model_clusters(rig.faces, n, reg, model.shape_matching_alpha, rings,
-                                kwargs.get("cluster_centers", "cover"))
-        clusters = _proxy_clusters(dense, clusters, px.vertices, n)
+    centers = kwargs.pop("cluster_centers", "cover")
+    model = cls.create(rig.neutral, px.dense_faces, mass=m, region=px.vertices, shape_matching_alpha=0.0, **kwargs)
+    model = dataclasses.replace(model, shape_matching_alpha=alpha)  # checked here, before it is used
+    alpha = model.shape_matching_alpha
+    clusters = Clusters.empty(n)
+    if alpha > 0:
+        clusters = _proxy_clusters(_model_clusters(rig.faces, n, reg, alpha, rings, centers), px.vertices, n)
     v = rig.neutral if reg is None else rig.neutral[reg]  # ε and the diameter of §5.2: the dense face's
     diameter = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     # clusters is FaceModel's only cluster-derived field (the systems build their cluster arrays from it)

@@ -190,7 +190,7 @@ class CorrectedTrajectory:
 
     def add_terms(self, out: list, times, order: int) -> None:
         """Add f and the trial bump (and their derivatives) at ``times`` (T,) to the base's ``order + 1`` arrays
-        ``out`` (T, *state_shape), in place of the list's items (a pose evaluated elsewhere, e.g. by
+        ``out`` ``(T, *state_shape)``, in place of the list's items (a pose evaluated elsewhere, e.g. by
         :class:`~kdfaces.motion.pose.PoseSampler`, is corrected by the same terms in the same order)."""
         if self.correction is not None:
             for k, fk in enumerate(self.correction.evaluate(times, order)):

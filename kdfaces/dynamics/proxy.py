@@ -117,7 +117,7 @@ class ProxyFaceSystem(FaceSystem):
         """(P,) int64: the dense vertices the proxy simulates (sorted)."""
         return np.asarray(self.model.region, dtype=np.int64)
 
-    def run_windows(self, trajectory, t0, n: int, h: float, progress=None) -> np.ndarray:
+    def run_windows(self, trajectory, t0, n: int, step_s: float, progress=None) -> np.ndarray:
         """The KD protocol's batch (:func:`~kdfaces.kd.step_windows`), with a single state's dense x_K computed on
         a worker while the calling thread steps it (class docstring); the same values as without the overlap."""
         from ..kd import step_states, step_windows
@@ -125,12 +125,12 @@ class ProxyFaceSystem(FaceSystem):
         t0 = np.atleast_1d(np.asarray(t0, dtype=np.float64))
         sampler = self._pose_sampler(trajectory)
         if self._workers is None or len(t0) != 1 or n == 0 or sampler is None:
-            return step_windows(self, trajectory, t0, n, h, progress)
-        times = t0 + n * h
+            return step_windows(self, trajectory, t0, n, step_s, progress)
+        times = t0 + n * step_s
         xk = np.empty((1, self.model.num_vertices, 3))
         pose = sampler.launch(trajectory, times, xk)[0]  # host inputs now: the worker then runs the kernel only
         box = []
-        self._workers.run([lambda: box.append(step_states(self, trajectory, t0, n, h, progress)), pose])
+        self._workers.run([lambda: box.append(step_states(self, trajectory, t0, n, step_s, progress)), pose])
         return self._observe(box[0], (trajectory, times, xk))
 
     def observe(self, state) -> np.ndarray:

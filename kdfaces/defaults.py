@@ -12,7 +12,7 @@ __all__ = [
     "SETTLE_TIME_S", "DAMPING_RATIO", "JOINT_SETTLE_TIME_S", "JOINT_DAMPING_RATIO", "SHAPE_MATCHING_ALPHA",
     "DAMPING_MODE", "AREAL_DENSITY_KG_M2",
     "CLUSTER_RINGS", "REGION_MARGIN_RINGS", "ROTATION", "ROTATION_ITERATIONS", "WINDOW_S", "STEP_S", "EPSILON_FRACTION",
-    "FACE_REGION", "FACE_PROXY", "PROXY_ABOVE_VERTICES",
+    "FACE_REGION", "FACE_PROXY", "PROXY_ABOVE_VERTICES", "PROXY_EMBEDDING", "PROXY_EMBEDDINGS",
     "MAX_WINDOW_STEPS", "MAX_SOLVE_WALL_S", "WIDTH_S", "CURVE", "PINV_DAMPING", "FALLOFF_M", "LIFT_ENERGY",
     "SOLVER_UPDATE",
     "STEP_SCALE", "TOLERANCE_M", "TOLERANCE_MPS", "MAX_ITERATIONS", "MAX_CORRECTION_M", "EASE_OUT_S", "THREADS",
@@ -55,6 +55,13 @@ FACE_PROXY = "auto"
 #: "auto" proxies faces above this many simulated vertices: above the 27k production rigs, whose dense KD is 25 ms per
 #: state and whose tests are held to dense tolerances; the default head (4.8k) and its 19k subdivision stay dense.
 PROXY_ABOVE_VERTICES = 30_000
+#: How a proxy carries the dense mesh (W, :meth:`kdfaces.dynamics.FaceModel.from_rig`'s ``proxy_embedding``):
+#: "fitted" learns each carried vertex's weights from the dense and proxy KD states of an excitation take
+#: (:mod:`kdfaces.dynamics.proxy_fit`; every demo frame 0.38 ε at 19k, 0.47 ε at 75k); "closest" is the closest
+#: point of a proxy triangle in shape space (:func:`kdfaces.rig.proxy.embedding_matrix`; 0.92 ε, 1.09 ε), built
+#: without simulating anything.
+PROXY_EMBEDDING = "fitted"
+PROXY_EMBEDDINGS = ("fitted", "closest")
 #: Cluster rotation fit: "iterative" (Newton on SO(3), warm-started; matches "svd3" within ε/100, several times
 #: faster) or "svd3"; and the iterative fit's Newton iterations per step.
 ROTATION = "iterative"

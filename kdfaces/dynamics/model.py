@@ -137,6 +137,11 @@ class FaceModel:
     embedding: sp.csr_matrix | None = None
     proxy_faces: np.ndarray | None = None
 
+    #: ``fn(rig, dense_model, proxy_model) → W``, the fit of ``proxy_embedding="fitted"``:
+    #: :func:`~kdfaces.dynamics.proxy_fit.model_embedding`, registered by its module (the package imports it; it
+    #: simulates, and the systems import this module).
+    embedding_fit = None
+
     def __post_init__(self):
         n = len(self.mass)
         if (self.mass <= 0).any() or not np.isfinite(self.mass).all():
@@ -266,7 +271,8 @@ class FaceModel:
     diameter = renamed_attribute("diameter_m")
 
     @classmethod
-    def from_rig(cls, rig, *, region=defaults.FACE_REGION, proxy=defaults.FACE_PROXY, **kwargs) -> FaceModel:
+    def from_rig(cls, rig, *, region=defaults.FACE_REGION, proxy=defaults.FACE_PROXY,
+                 proxy_embedding: str = defaults.PROXY_EMBEDDING, **kwargs) -> FaceModel:
         """:meth:`create` on a :class:`~kdfaces.rig.BlendshapeRig`'s neutral mesh (same keyword arguments).
 
         ``region``: "auto" (default) simulates the rig's moving region (:func:`kdfaces.rig.region.moving_region`:
@@ -279,7 +285,13 @@ class FaceModel:
         region has more than :data:`kdfaces.defaults.PROXY_ABOVE_VERTICES` non-rigid vertices (else, and with
         None, the dense mesh itself, as before); an integer: a proxy of about that many vertices; or a
         :class:`~kdfaces.rig.proxy.FaceProxy` built beforehand.
+
+        ``proxy_embedding`` (with a proxy): "fitted" (default, :data:`kdfaces.defaults.PROXY_EMBEDDING`) fits W to
+        the dense and the proxy's KD states on an excitation take (:mod:`kdfaces.dynamics.proxy_fit`: two short
+        simulations: at 75k vertices the model takes 31 s to build instead of 13 s), starting from the proxy's shape-space W; "closest" keeps that W.
         """
+        if proxy_embedding not in defaults.PROXY_EMBEDDINGS:
+            raise KDInputError(f"proxy_embedding: expected one of {defaults.PROXY_EMBEDDINGS}, got {proxy_embedding!r}")
         if isinstance(region, str):
             if region != "auto":
                 raise KDInputError(f"region: expected 'auto', None or vertex indices, got {region!r}")
@@ -288,7 +300,12 @@ class FaceModel:
             region = moving_region(rig) if rig.num_shapes or rig.skeleton is not None else None
         if proxy is None:
             return cls.create(rig.neutral, rig.faces, region=region, **kwargs)
-        return _proxy_model(cls, rig, region, proxy, kwargs)
+        model = _proxy_model(cls, rig, region, proxy, kwargs)
+        if model.embedding is None or proxy_embedding != "fitted":
+            return model
+        # the dense model the fit learns from: this one without the proxy
+        dense = cls.create(rig.neutral, rig.faces, region=region, **kwargs)
+        return dataclasses.replace(model, embedding=cls.embedding_fit(rig, dense, model))
 
 
 def _model_clusters(faces: np.ndarray, n: int, region: np.ndarray | None, alpha: float, rings: int,
@@ -402,7 +419,11 @@ def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
     else:
         m = _per_vertex(mass, n, "mass")
     m = np.array(m, dtype=np.float64)
-    m[px.vertices] = px.weights.T @ m
+    # each dense vertex's mass lumped onto its row's positive weights, rescaled to sum to one: W^T m for the
+    # barycentric shape-space W, and positive (the total kept) for a fitted W with negative weights
+    wp = sp.csr_matrix(px.weights).maximum(0.0)
+    s = np.asarray(wp.sum(axis=1)).ravel()
+    m[px.vertices] = (sp.diags(np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0)) @ wp).T @ m
     # shape matching on the dense model's own clusters, restricted to the proxy (_proxy_clusters): the model is
     # built without clusters of its own triangles, then given those
     alpha = kwargs.pop("shape_matching_alpha", kwargs.pop("alpha", defaults.SHAPE_MATCHING_ALPHA))

@@ -37,8 +37,16 @@ def demo(dense_rig):
 
     traj = KinematicTrajectory(dense_rig, demo_animation())
     dense = demo_face_model(dense_rig, proxy=None)
-    proxy = demo_face_model(dense_rig, proxy=PROXY_VERTICES)
+    proxy = demo_face_model(dense_rig, proxy=PROXY_VERTICES)  # W fitted (the default)
     return traj, dense, proxy
+
+
+@pytest.fixture(scope="module")
+def closest(dense_rig):
+    """The same proxy with the shape-space W it is fitted from (proxy_embedding="closest")."""
+    from kdfaces.shots.demo import demo_face_model
+
+    return demo_face_model(dense_rig, proxy=PROXY_VERTICES, proxy_embedding="closest")
 
 
 def _kd(model, traj, times):
@@ -49,22 +57,29 @@ def _kd(model, traj, times):
         system.close()
 
 
-def test_the_proxy_is_a_vertex_subset_with_an_exact_embedding(dense_rig, demo):
+def test_the_proxy_is_a_vertex_subset_with_an_exact_embedding(dense_rig, demo, closest):
+    from kdfaces.dynamics.proxy_fit import FIT_NEIGHBOURS
+
     _, dense, model = demo
     W, proxy = model.embedding, model.region
     n = dense_rig.num_vertices
     assert model.proxy and not dense.proxy
     assert 0.9 * PROXY_VERTICES <= len(proxy) <= 1.1 * PROXY_VERTICES
-    assert W.shape == (n, len(proxy)) and sp.isspmatrix_csr(W)
-    # identity rows on the proxy: its dense states are its own states
-    assert (W[proxy] != sp.identity(len(proxy), format="csr")).nnz == 0
-    sums = np.asarray(W.sum(axis=1)).ravel()
+    np.testing.assert_array_equal(closest.region, proxy)  # the fit changes W only
     free = ~dense.rigid_mask
-    # rows of the non-rigid vertices sum to one (a translation of the deviation is carried exactly) ...
-    np.testing.assert_allclose(sums[free], 1.0, rtol=0, atol=1e-12)
-    assert W.data.min() >= 0.0 and np.diff(W.indptr).max() <= 3  # barycentric: three non-negative weights
-    # ... and rigid parts (eyes, teeth) have zero rows: they follow x_K exactly
-    assert dense.rigid_mask.any() and np.diff(W.indptr)[dense.rigid_mask].max() == 0
+    for E, most in ((closest.embedding, 3), (W, FIT_NEIGHBOURS)):
+        assert E.shape == (n, len(proxy)) and sp.isspmatrix_csr(E)
+        # identity rows on the proxy: its dense states are its own states
+        assert (E[proxy] != sp.identity(len(proxy), format="csr")).nnz == 0
+        # rows of the non-rigid vertices sum to one (a translation of the deviation is carried exactly) ...
+        sums = np.asarray(E.sum(axis=1)).ravel()
+        np.testing.assert_allclose(sums[free], 1.0, rtol=0, atol=1e-12)
+        assert np.diff(E.indptr).max() <= most
+        # ... and rigid parts (eyes, teeth) have zero rows: they follow x_K exactly
+        assert dense.rigid_mask.any() and np.diff(E.indptr)[dense.rigid_mask].max() == 0
+    # the shape-space W is barycentric: three non-negative weights; the fit carries the same vertices
+    assert closest.embedding.data.min() >= 0.0
+    np.testing.assert_array_equal(np.diff(W.indptr) > 0, np.diff(closest.embedding.indptr) > 0)
     # the dense face's ε: the diameter is the dense region's, and the proxy's masses are the dense mass (W^T m)
     assert model.diameter_m == dense.diameter_m
     np.testing.assert_allclose(model.mass[proxy].sum(), dense.mass[free].sum(), rtol=1e-12)
@@ -93,7 +108,8 @@ def test_the_proxys_clusters_are_the_dense_clusters_restricted(dense_rig, demo):
     # shape matching off: no clusters, as on the dense model
     px = FaceProxy(vertices=model.region, faces=np.searchsorted(model.region, model.proxy_faces),
                    weights=model.embedding)
-    assert FaceModel.from_rig(dense_rig, proxy=px, shape_matching_alpha=0.0).clusters.num_clusters == 0
+    assert FaceModel.from_rig(dense_rig, proxy=px, shape_matching_alpha=0.0,
+                              proxy_embedding="closest").clusters.num_clusters == 0
     with pytest.raises(KDInputError, match="shape_matching_alpha"):
         FaceModel.from_rig(dense_rig, proxy=px, shape_matching_alpha=1.5)
 
@@ -151,7 +167,7 @@ def test_the_settle_time_map_is_a_coordinate_of_the_proxys_shape_space(default_r
         shape_features(default_rig.neutral, default_rig.deltas, np.ones((n - 1, 1)))
     # from_rig builds the proxy with the model's settle-time map as that coordinate ...
     simulated = dense.region_mask & ~dense.rigid_mask
-    model = demo_face_model(default_rig, proxy=2_000)
+    model = demo_face_model(default_rig, proxy=2_000, proxy_embedding="closest")
     px = build_proxy(default_rig.neutral, default_rig.faces, simulated, 2_000, default_rig.deltas, feat)
     np.testing.assert_array_equal(model.region, px.vertices)
     assert (model.embedding != px.weights).nnz == 0
@@ -226,28 +242,28 @@ def test_the_proxy_system_observes_the_dense_mesh(demo):
     system.close()
 
 
-def _accuracy(traj, dense, model, times):
-    x_dense, x_proxy = _kd(dense, traj, times), _kd(model, traj, times)
+def _accuracy(traj, dense, models, times):
+    """Per model, |x_model − x_dense| (T, N) [m]; and |x_dense − x_K| (T, N) [m]."""
+    x_dense = _kd(dense, traj, times)
     xk = traj.evaluate(times, order=0)[0]
-    err = np.linalg.norm(x_proxy - x_dense, axis=-1)
-    dev = np.linalg.norm(x_dense - xk, axis=-1)
-    return err, dev
+    return [np.linalg.norm(_kd(m, traj, times) - x_dense, axis=-1) for m in models], \
+        np.linalg.norm(x_dense - xk, axis=-1)
 
 
-#: The proxy's error relative to ε. The issue asks for ε/2 on every frame. The proxy's shape-matching clusters are
-#: the dense model's 2-ring clusters restricted to its vertices (those keeping three or more; vertices none holds
-#: track x_K by PD alone), so its dynamics follow the dense dynamics, and its shape space (decimation and W) has the
-#: settle-time map as a coordinate (SETTLE_TIME_FEATURE_M_PER_S), so W's weights stay on corners of the vertex's own
-#: gains: on these frames (demo, capture) 0.38, 0.40 ε at the proxy's own vertices (0.58, 0.68 ε without the map),
-#: 0.23, 0.29 ε at the 99th percentile (0.30, 0.30 ε) and 0.70, 0.68 ε in all (1.01, 0.85 ε), the largest at carried
-#: vertices around the mouth (on the demo 3.7 cm from a corner), where W's interpolation meets a deviation that
-#: changes by ~10 mm over a centimetre (docs/dense-rigs.md). These bounds hold what is reached with ~20 % margin, so
-#: that a regression fails.
-P99_FRACTION, MAX_FRACTION, PROXY_VERTEX_FRACTION = 0.35, 0.84, 0.48
+#: The proxy's error relative to ε; the issue asks for ε/2 on every frame. W is fitted to the dense and proxy KD
+#: states of the excitation take (kdfaces.dynamics.proxy_fit), which shares nothing with these takes. Measured on
+#: these frames (demo, capture): 0.376, 0.400 ε in all, which is the error at the proxy's own vertices (the proxy's
+#: dynamics: its clusters are the dense model's 2-ring clusters restricted to it, and W carries them with the
+#: identity), so the carried vertices are no worse; 0.076, 0.109 ε at the 99th percentile. With the shape-space W
+#: (proxy_embedding="closest") 0.699, 0.684 ε and 0.221, 0.293 ε, the largest around the mouth, where the deviation
+#: changes by ~10 mm over a centimetre. The bounds hold what is reached with ~20 % margin (and stay below ε/2), so
+#: that a regression fails; the fit must at least halve the 99th percentile.
+P99_FRACTION, MAX_FRACTION, PROXY_VERTEX_FRACTION = 0.13, 0.48, 0.48
+FIT_GAIN = 0.5
 
 
 @pytest.mark.parametrize("take", ["demo", "capture"])
-def test_proxy_kd_states_are_close_to_the_dense_kd_states(take, demo, dense_rig, tmp_path):
+def test_proxy_kd_states_are_close_to_the_dense_kd_states(take, demo, closest, dense_rig, tmp_path):
     traj, dense, model = demo
     if take == "demo":
         times = traj.frame_times[::5]
@@ -260,13 +276,16 @@ def test_proxy_kd_states_are_close_to_the_dense_kd_states(take, demo, dense_rig,
         traj = KinematicTrajectory(dense_rig, livelinkface_animation(path))
         times = traj.frame_times[::90]
     eps = EPSILON_FRACTION * dense.diameter_m
-    err, dev = _accuracy(traj, dense, model, times)
+    (err, base), dev = _accuracy(traj, dense, (model, closest), times)
     assert dev.max() > 10 * eps  # the face deviates: the comparison is not between two copies of x_K
     per_vertex = err.max(axis=0)
     assert np.quantile(per_vertex, 0.99) <= P99_FRACTION * eps, np.quantile(per_vertex, 0.99) / eps
-    assert err.max() <= MAX_FRACTION * eps, err.max() / eps
+    assert err.max() <= MAX_FRACTION * eps < 0.5 * eps, err.max() / eps
     # the dynamics alone: the proxy's own vertices, which W carries with the identity
     assert err[:, model.region].max() <= PROXY_VERTEX_FRACTION * eps, err[:, model.region].max() / eps
+    # the fitted W against the shape-space W it starts from, on the same proxy
+    assert np.quantile(per_vertex, 0.99) <= FIT_GAIN * np.quantile(base.max(axis=0), 0.99), \
+        (np.quantile(per_vertex, 0.99) / eps, np.quantile(base.max(axis=0), 0.99) / eps)
 
 
 def test_ikd_on_the_proxy_meets_the_constraints_on_the_dense_mesh(dense_rig, demo):
@@ -303,6 +322,8 @@ def test_bad_proxies_are_one_clear_error(dense_rig, default_rig):
         FaceModel.from_rig(default_rig, proxy=10)
     with pytest.raises(KDInputError, match="proxy: expected 'auto'"):
         FaceModel.from_rig(default_rig, proxy="coarse")
+    with pytest.raises(KDInputError, match="proxy_embedding: expected one of"):
+        FaceModel.from_rig(default_rig, proxy=2_000, proxy_embedding="nearest")
     with pytest.raises(KDInputError, match="not more than the proxy's"):
         FaceModel.from_rig(default_rig, proxy=10_000)
     px = build_proxy(default_rig.neutral, default_rig.faces, np.ones(default_rig.num_vertices, bool), 2_000)

@@ -14,17 +14,18 @@ The proxy
     (:func:`~kdfaces.motion.trajectory.restrict_trajectory`): the same blend + skin values, and a corrected
     trajectory (IKD's x_K + f on dense vertices) reaches the proxy with no extra mapping.
 W
-    (N, P) scipy CSR: each dense vertex of the moving region that is not rigid and not a proxy vertex gets the
-    barycentric coordinates of its closest point on a proxy triangle in shape space (rest position and blend-shape
-    displacements, :func:`~kdfaces.rig.proxy.embedding_matrix`; three non-negative nonzeros, rows summing to one,
-    so a rigid motion of the deviation field — the head turn's lag — is carried exactly); a proxy vertex's row is the
+    (N, P) scipy CSR, rows summing to one (a uniform deviation is carried exactly): a proxy vertex's row is the
     identity (its dense state is the proxy state itself); rigid vertices (eyes, teeth) and vertices outside the
-    moving region get zero rows: they follow x_K exactly.
+    moving region get zero rows: they follow x_K exactly; every other vertex of the moving region starts from the
+    barycentric coordinates of its closest point on a proxy triangle in shape space (rest position, blend-shape
+    displacements and the settle-time map, :func:`~kdfaces.rig.proxy.embedding_matrix`; three non-negative
+    nonzeros) and, by default, is then fitted to the dense and proxy KD states of an excitation take
+    (:mod:`kdfaces.dynamics.proxy_fit`; twelve weights, some negative), which halves the largest error.
 
 The dynamics of the proxy keep what matters: the dense model's settle-time map and gains read at the proxy's
-vertices, lumped masses Wᵀm (the dense mass it stands for, so the total mass is kept), shape matching (Müller et al.
-2005) on the dense model's own clusters restricted to the proxy's vertices (those keeping three or more; the proxy's
-own ring clusters for the vertices none of them covers: ``kdfaces.dynamics.model._proxy_clusters``), and the dense
+vertices, lumped masses (the dense mass each stands for, so the total mass is kept), shape matching (Müller et al.
+2005) on the dense model's own clusters restricted to the proxy's vertices (those keeping three or more; a proxy
+vertex none of them holds tracks x_K by PD alone: ``kdfaces.dynamics.model._proxy_clusters``), and the dense
 region's diameter (ε of §5.2 is the dense face's).
 
 :class:`ProxyFaceSystem` is a :class:`~kdfaces.dynamics.FaceSystem` on the proxy (its region is the proxy's vertex

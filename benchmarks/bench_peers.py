@@ -18,7 +18,8 @@ on the same head and the same head motion, in one interleaved run (``scripts/ben
   window (:func:`kdfaces.window.automatic_window`).
 - **Rows** (medians of :data:`ROUNDS` interleaved rounds; in a round each side plays, then each scrubs):
   ``peer_fastcd_play`` (ms per step of play-forward; ours beside it both as a full simulation per step and as a KD
-  batch of all 151 frames on 2 threads per frame), ``peer_fastcd_scrub`` (ms to show t = 3 s: ours one KD state,
+  batch of all 151 frames on 2 threads per frame, and on the 19k head also that batch on a 6k-vertex proxy,
+  :data:`PROXY_VERTICES`, in a process of its own), ``peer_fastcd_scrub`` (ms to show t = 3 s: ours one KD state,
   the peer simulating from the start, the only way it gets that frame right), ``peer_fastcd_memory`` (each process's
   peak resident memory, MiB) and ``peer_fastcd_history`` (does frame t depend on how the user got there: ours, the
   largest difference between the KD state at 3 s scrubbed first and scrubbed after playing and scrubbing elsewhere,
@@ -48,6 +49,8 @@ SCRUB_S, JUMP_FROM_S = 3.0, (0.0, 1.0, 2.0, 5.0)
 PEER_MODES, PEER_CLUSTERS, PEER_MU, PEER_RHO = 16, 100, 1e4, 1e3
 #: (Loop levels, label) of the heads compared
 SIZES = ((0, "4.8k"), (1, "19k"))
+#: the proxy the subdivided head is also measured on (the accuracy tests' 6k: within ε/2 of the dense KD states)
+PROXY_VERTICES = 6_000
 HERE = Path(__file__).resolve().parent
 
 
@@ -203,8 +206,9 @@ class _Worker:
                 self.proc.kill()
 
 
-def _ours_worker(levels: int) -> None:
-    """Our side (``python bench_peers.py --ours LEVELS``): the same commands as the peer's worker, plus ``batch``."""
+def _ours_worker(levels: int, proxy: int | None = None) -> None:
+    """Our side (``python bench_peers.py --ours LEVELS [PROXY]``): the same commands as the peer's worker, plus
+    ``batch``; with ``PROXY``, on a proxy of about that many vertices (``FaceModel.from_rig(rig, proxy=PROXY)``)."""
     import resource
 
     out = os.fdopen(os.dup(1), "w", buffering=1)
@@ -217,7 +221,7 @@ def _ours_worker(levels: int) -> None:
     traj = KinematicTrajectory(rig, anim)
     h = 1.0 / anim.fps
     times = traj.frame_times
-    model = FaceModel.from_rig(rig)
+    model = FaceModel.from_rig(rig) if proxy is None else FaceModel.from_rig(rig, proxy=proxy)
     one, two = FaceSystem(model, threads=1), FaceSystem(model, threads=2)
     window_s = float(automatic_window(one, traj, step_s=h).window_s)
     kd = {"step_s": h}
@@ -280,12 +284,18 @@ def _compare(levels: int, label: str, peer_py: Path, rounds: int) -> list[dict]:
         peer = _Worker([str(peer_py), str(HERE / "peer_fastcd_worker.py"), str(scene),
                         str(cache_root() / "peers-cache" / key)])
         ours = _Worker([sys.executable, str(Path(__file__).resolve()), "--ours", str(levels)])
+        # the dense face above the default head also on a proxy (issue #29), in a process of its own: its own
+        # memory, and the same rounds
+        on_proxy = _Worker([sys.executable, str(Path(__file__).resolve()), "--ours", str(levels),
+                            str(PROXY_VERTICES)]) if levels > 0 else None
         try:
-            r = {k: [] for k in ("ours_play", "ours_batch", "peer_play", "ours_scrub", "peer_scrub")}
+            r = {k: [] for k in ("ours_play", "ours_batch", "peer_play", "ours_scrub", "peer_scrub", "proxy_batch")}
             for _ in range(rounds):  # interleaved: the machine's load falls on both sides alike
                 r["ours_play"].append(ours.ask("play")["ms_per_step"])
                 r["peer_play"].append(peer.ask("play")["ms_per_step"])
                 r["ours_batch"].append(ours.ask("batch")["ms_per_frame"])
+                if on_proxy is not None:
+                    r["proxy_batch"].append(on_proxy.ask("batch")["ms_per_frame"])
                 r["ours_scrub"].append(ours.ask("scrub")["ms"])
                 r["peer_scrub"].append(peer.ask("scrub")["ms"])
             hist_ours = ours.ask("history")
@@ -294,7 +304,9 @@ def _compare(levels: int, label: str, peer_py: Path, rounds: int) -> list[dict]:
         finally:
             ours.close()
             peer.close()
-    med = {k: statistics.median(v) for k, v in r.items()}
+            if on_proxy is not None:
+                on_proxy.close()
+    med = {k: statistics.median(v) for k, v in r.items() if v}
     proxy = ours.hello.get("proxy")
     us = f"ours {ours.hello['vertices']} vertices, " + (f"proxy {proxy}" if proxy else "no proxy")
     them = f"peer {peer.hello['nodes']} nodes, {peer.hello['reduced_dofs']} DOFs"
@@ -307,6 +319,12 @@ def _compare(levels: int, label: str, peer_py: Path, rounds: int) -> list[dict]:
         return {"name": name, "size": f"{where}: {size}", "median_s": value / 1e3 if seconds else float("nan"),
                 "rate": value, "unit": unit}
 
+    extra = []
+    if on_proxy is not None:
+        extra.append(row("peer_fastcd_play", f"ours on a {on_proxy.hello['proxy']}-vertex proxy, KD batch of {frames}, "
+                                             f"2 threads, per frame (δ = {on_proxy.hello['window_s']:.3g} s; "
+                                             f"{med['peer_play'] / med['proxy_batch']:.2f}× the peer's speed)",
+                         med["proxy_batch"], "ms"))
     return [
         row("peer_fastcd_play", f"peer, per step (h = {h:g} s, median of {rounds})", med["peer_play"], "ms"),
         row("peer_fastcd_play", f"ours, full simulation, per step ({med['peer_play'] / med['ours_play']:.2f}× the "
@@ -314,6 +332,7 @@ def _compare(levels: int, label: str, peer_py: Path, rounds: int) -> list[dict]:
         row("peer_fastcd_play", f"ours, KD batch of {frames}, 2 threads, per frame (δ = {ours.hello['window_s']:.3g} "
                                 f"s; {med['peer_play'] / med['ours_batch']:.2f}× the peer's speed)", med["ours_batch"],
             "ms"),
+        *extra,
         row("peer_fastcd_scrub", f"peer, t = {SCRUB_S:g} s (simulated from the start)", med["peer_scrub"], "ms"),
         row("peer_fastcd_scrub", f"ours, t = {SCRUB_S:g} s (one KD state; {med['peer_scrub'] / med['ours_scrub']:.1f}×"
                                  " faster)", med["ours_scrub"], "ms"),
@@ -350,8 +369,8 @@ BENCHMARKS = [("peers", bench_peers)]
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "--ours":
-        _ours_worker(int(sys.argv[2]))
+    if len(sys.argv) in (3, 4) and sys.argv[1] == "--ours":
+        _ours_worker(int(sys.argv[2]), int(sys.argv[3]) if len(sys.argv) == 4 else None)
     else:
         for row in bench_peers(int(sys.argv[1]) if len(sys.argv) > 1 else ROUNDS):
             print(row)

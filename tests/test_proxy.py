@@ -67,10 +67,12 @@ def test_the_proxy_is_a_vertex_subset_with_an_exact_embedding(dense_rig, demo, c
     assert 0.9 * PROXY_VERTICES <= len(proxy) <= 1.1 * PROXY_VERTICES
     np.testing.assert_array_equal(closest.region, proxy)  # the fit changes W only
     free = ~dense.rigid_mask
+    # the shape-space W: identity rows on the proxy (its dense states are its own states); the fitted W fits
+    # those rows too, about the identity (the proxy's own deviation carries most of its vertex's)
+    assert (closest.embedding[proxy] != sp.identity(len(proxy), format="csr")).nnz == 0
+    assert np.median(W[proxy].diagonal()) > 0.5
     for E, most in ((closest.embedding, 3), (W, FIT_NEIGHBOURS)):
         assert E.shape == (n, len(proxy)) and sp.isspmatrix_csr(E)
-        # identity rows on the proxy: its dense states are its own states
-        assert (E[proxy] != sp.identity(len(proxy), format="csr")).nnz == 0
         # rows of the non-rigid vertices sum to one (a translation of the deviation is carried exactly) ...
         sums = np.asarray(E.sum(axis=1)).ravel()
         np.testing.assert_allclose(sums[free], 1.0, rtol=0, atol=1e-12)
@@ -222,11 +224,16 @@ def test_the_proxy_system_observes_the_dense_mesh(demo):
     # PoseSampler's kernel, the trajectory's sums in another order: float64 round-off of a 1 m head (~1e-16 m)
     still = np.diff(model.embedding.indptr) == 0
     np.testing.assert_allclose(x[:, still], xk[:, still], rtol=0, atol=1e-12)
-    # the carried vertices are x_K + W (x_proxy − x_K,proxy)
-    d = x[:, model.region] - xk[:, model.region]
-    carried = ~still & ~model.region_mask
+    # every other vertex is x_K + W (x_proxy − x_K,proxy), the proxy's own (W fits their rows too) and the carried
+    # ones, with x_proxy the state (float32)
+    from kdfaces.kd import step_states, time_steps
+
+    h = 1.0 / traj.fps
+    n = int(time_steps(system, traj, t, WINDOW_S, h)[0])
+    state = step_states(system, traj, t - n * h, n, h)  # the proxy's state: its positions in the region's order
+    d = system._positions(state).astype(np.float64) - xk[:, model.region]
     for b in range(len(t)):
-        np.testing.assert_allclose(x[b, carried], xk[b, carried] + (model.embedding @ d[b])[carried], rtol=0,
+        np.testing.assert_allclose(x[b, ~still], xk[b, ~still] + (model.embedding @ d[b])[~still], rtol=0,
                                    atol=1e-12)
     # the deviation rows simulated_kinematic names are exactly the vertices that differ from x_K
     rows, xs = system.simulated_kinematic(traj, t)
@@ -250,16 +257,16 @@ def _accuracy(traj, dense, models, times):
         np.linalg.norm(x_dense - xk, axis=-1)
 
 
-#: The proxy's error relative to ε; the issue asks for ε/2 on every frame. W is fitted to the dense and proxy KD
-#: states of the excitation take (kdfaces.dynamics.proxy_fit), which shares nothing with these takes. Measured on
-#: these frames (demo, capture): 0.376, 0.400 ε in all, which is the error at the proxy's own vertices (the proxy's
-#: dynamics: its clusters are the dense model's 2-ring clusters restricted to it, and W carries them with the
-#: identity), so the carried vertices are no worse; 0.076, 0.109 ε at the 99th percentile. With the shape-space W
-#: (proxy_embedding="closest") 0.699, 0.684 ε and 0.221, 0.293 ε, the largest around the mouth, where the deviation
-#: changes by ~10 mm over a centimetre. The bounds hold what is reached with ~20 % margin (and stay below ε/2), so
-#: that a regression fails; the fit must at least halve the 99th percentile.
-P99_FRACTION, MAX_FRACTION, PROXY_VERTEX_FRACTION = 0.13, 0.48, 0.48
-FIT_GAIN = 0.5
+#: The proxy's error relative to ε; the issue asks for ε/2 on every frame. W is fitted, the proxy's own rows
+#: included, to the dense and proxy KD states of the excitation take (kdfaces.dynamics.proxy_fit), which shares
+#: nothing with these takes. Measured on these frames (demo, capture): 0.193, 0.227 ε in all, 0.049, 0.073 ε at the
+#: 99th percentile, 0.121, 0.164 ε at the proxy's own vertices (on every frame: 0.19, 0.46 ε; docs/dense-rigs.md).
+#: With the shape-space W (proxy_embedding="closest", identity rows on the proxy): 0.699, 0.684 ε, 0.221, 0.293 ε
+#: and 0.376, 0.400 ε; its largest errors sit around the mouth, where the deviation changes by ~10 mm over a
+#: centimetre. The bounds hold what is reached with ~20 % margin, so that a regression fails; the fit must at least
+#: cut the 99th percentile to 0.4 of the shape-space W's.
+P99_FRACTION, MAX_FRACTION, PROXY_VERTEX_FRACTION = 0.09, 0.28, 0.20
+FIT_GAIN = 0.4
 
 
 @pytest.mark.parametrize("take", ["demo", "capture"])
@@ -281,7 +288,7 @@ def test_proxy_kd_states_are_close_to_the_dense_kd_states(take, demo, closest, d
     per_vertex = err.max(axis=0)
     assert np.quantile(per_vertex, 0.99) <= P99_FRACTION * eps, np.quantile(per_vertex, 0.99) / eps
     assert err.max() <= MAX_FRACTION * eps < 0.5 * eps, err.max() / eps
-    # the dynamics alone: the proxy's own vertices, which W carries with the identity
+    # the proxy's own vertices: its dynamics, their rows of W fitted too
     assert err[:, model.region].max() <= PROXY_VERTEX_FRACTION * eps, err[:, model.region].max() / eps
     # the fitted W against the shape-space W it starts from, on the same proxy
     assert np.quantile(per_vertex, 0.99) <= FIT_GAIN * np.quantile(base.max(axis=0), 0.99), \

@@ -114,7 +114,7 @@ class FaceModel:
             exactly and cost nothing per step; clusters hold region vertices only. Per-vertex arrays stay (N,).
         embedding: None, or W (N, R) scipy CSR when the region is a proxy of the dense face
             (:mod:`kdfaces.dynamics.proxy`): every vertex is observed as x_K + W (x_region − x_K,region), so the
-            dense mesh is carried by the simulated proxy (identity rows on the region, zero rows for vertices that
+            dense mesh is carried by the simulated proxy (rows summing to one, zero rows for vertices that
             follow x_K). :class:`~kdfaces.dynamics.FaceSystem` on such a model is a
             :class:`~kdfaces.dynamics.proxy.ProxyFaceSystem`.
         proxy_faces: the proxy's triangles (G, 3) int64 in the rig's vertex numbering, with ``embedding`` (else
@@ -288,7 +288,8 @@ class FaceModel:
 
         ``proxy_embedding`` (with a proxy): "fitted" (default, :data:`kdfaces.defaults.PROXY_EMBEDDING`) fits W to
         the dense and the proxy's KD states on an excitation take (:mod:`kdfaces.dynamics.proxy_fit`: two short
-        simulations: at 75k vertices the model takes 31 s to build instead of 13 s), starting from the proxy's shape-space W; "closest" keeps that W.
+        simulations; at 75k vertices the model takes 31 s to build instead of 13 s), starting from the proxy's
+        shape-space W; "closest" keeps that W.
         """
         if proxy_embedding not in defaults.PROXY_EMBEDDINGS:
             raise KDInputError(f"proxy_embedding: expected one of {defaults.PROXY_EMBEDDINGS}, got {proxy_embedding!r}")

@@ -14,13 +14,14 @@ The proxy
     (:func:`~kdfaces.motion.trajectory.restrict_trajectory`): the same blend + skin values, and a corrected
     trajectory (IKD's x_K + f on dense vertices) reaches the proxy with no extra mapping.
 W
-    (N, P) scipy CSR, rows summing to one (a uniform deviation is carried exactly): a proxy vertex's row is the
-    identity (its dense state is the proxy state itself); rigid vertices (eyes, teeth) and vertices outside the
+    (N, P) scipy CSR, rows summing to one (a uniform deviation is carried exactly): a proxy vertex's row starts
+    as the identity (its dense state the proxy state itself); rigid vertices (eyes, teeth) and vertices outside the
     moving region get zero rows: they follow x_K exactly; every other vertex of the moving region starts from the
     barycentric coordinates of its closest point on a proxy triangle in shape space (rest position, blend-shape
     displacements and the settle-time map, :func:`~kdfaces.rig.proxy.embedding_matrix`; three non-negative
-    nonzeros) and, by default, is then fitted to the dense and proxy KD states of an excitation take
-    (:mod:`kdfaces.dynamics.proxy_fit`; twelve weights, some negative), which halves the largest error.
+    nonzeros). By default every nonzero row, the proxy's own included, is then fitted to the dense and proxy KD
+    states of an excitation take (:mod:`kdfaces.dynamics.proxy_fit`; twenty weights, some negative), which
+    halves the largest error.
 
 The dynamics of the proxy keep what matters: the dense model's settle-time map and gains read at the proxy's
 vertices, lumped masses (the dense mass each stands for, so the total mass is kept), shape matching (Müller et al.
@@ -98,9 +99,15 @@ class ProxyFaceSystem(FaceSystem):
             raise KDInputError("proxy system: expected a FaceModel with a proxy (FaceModel.from_rig(rig, proxy=...))")
         super().__init__(model, **kwargs)
         W = sp.csr_matrix(model.embedding)
-        inside = np.zeros(model.num_vertices, dtype=bool)
-        inside[model.region] = True
-        carried = np.flatnonzero((np.diff(W.indptr) > 0) & ~inside)  # dense rows that move with the proxy
+        W.sort_indices()
+        region = np.asarray(model.region, dtype=np.int64)
+        # a proxy vertex whose row is the identity (W's prior) is the proxy's state itself; every other row with
+        # nonzeros (the carried vertices, and proxy vertices whose rows are fitted) is x_K + W (x_proxy − x_K,proxy)
+        own = W[region]  # (P, P): row j is proxy vertex j's
+        self._identity = (np.diff(own.indptr) == 1) & (own.diagonal() == 1.0)
+        fixed = np.zeros(model.num_vertices, dtype=bool)
+        fixed[region[self._identity]] = True
+        carried = np.flatnonzero((np.diff(W.indptr) > 0) & ~fixed)
         self._carried = carried.astype(np.int64)
         carry = sp.csr_matrix(W[carried])  # (E, P)
         carry.sort_indices()
@@ -135,8 +142,9 @@ class ProxyFaceSystem(FaceSystem):
         return self._observe(box[0], (trajectory, times, xk))
 
     def observe(self, state) -> np.ndarray:
-        """Dense vertex positions of every member [m], (B, N, 3) float64: the proxy's vertices from the state, the
-        carried vertices x_K + W (x_proxy − x_K,proxy), every other vertex x_K (float64). One pass of x_K over
+        """Dense vertex positions of every member [m], (B, N, 3) float64: the carried vertices (and proxy
+        vertices whose rows W fits) x_K + W (x_proxy − x_K,proxy), proxy vertices with identity rows the state
+        itself, every other vertex x_K (float64). One pass of x_K over
         the N vertices per member and one pass over the carried vertices' rows of W, each split over the threads
         by vertices (every vertex's arithmetic is the same however it is split)."""
         return self._observe(state, None)
@@ -159,7 +167,7 @@ class ProxyFaceSystem(FaceSystem):
             xp = x[i:i + 32].astype(np.float64)
             if len(self._carried):
                 self._embed(xp - xk[:, region], xk)
-            xk[:, region] = xp
+            xk[:, region[self._identity]] = xp[:, self._identity]
             out.append(xk)
         return out[0] if len(out) == 1 else np.concatenate(out)
 

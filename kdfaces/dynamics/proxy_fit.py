@@ -5,24 +5,24 @@ of one proxy triangle. Where the deviation x − x_K changes fast over the skin 
 over a centimetre) three corners cannot reproduce it: on the demo that interpolation alone is ~1 ε off the dense KD
 states at 19k and 75k vertices, twice the issue's ε/2.
 
-Here each carried vertex's row of W is fitted instead, to the dynamics themselves. The dense model and the proxy
-model are both simulated (KD states, history-free) on an *excitation take* (:func:`excitation_animation`: every
-blend shape eased in and out at seeded times, and the head turned and nodded), and each dense vertex i gets the
-weights w over its :data:`FIT_NEIGHBOURS` candidate proxy vertices (its shape-space triangle's corners first, then
-its nearest proxy vertices in shape space) that minimise
+Here each row of W is fitted instead, to the dynamics themselves: the carried vertices' and the proxy's own. The
+dense model and the proxy model are both simulated (KD states, history-free) on an *excitation take*
+(:func:`excitation_animation`: every blend shape eased in and out at seeded times, and the head turned and nodded),
+and each dense vertex i gets the weights w over its :data:`FIT_NEIGHBOURS` candidate proxy vertices (its shape-space
+triangle's corners first, or itself for a proxy vertex, then its nearest proxy vertices in shape space) that
+minimise
 
     Σ_t ‖Σ_j w_j d_j(t) − D_i(t)‖² + λ s² ‖w − w₀‖²    subject to  Σ_j w_j = 1,
 
 with d_j the *proxy's* deviation (what W multiplies at run time, so W also absorbs the proxy's own systematic
-error), D_i the dense deviation, w₀ the shape-space barycentric weights (the prior: where the take says little,
-W stays the geometric embedding), s the take's rms dense deviation (λ is dimensionless: :data:`FIT_DAMPING`) and the
-sum-to-one constraint carrying a uniform deviation exactly. It is one (k+1)×(k+1) KKT system per vertex (k
-neighbours and the multiplier), batched in numpy.
+error: at its own vertices too, where the prior is the identity), D_i the dense deviation, w₀ the shape-space
+barycentric weights (the prior: where the take says little, W stays the geometric embedding), s² the take's mean
+square dense deviation (λ is dimensionless: :data:`FIT_DAMPING`) and the sum-to-one constraint carrying a uniform
+deviation exactly. It is one (k+1)×(k+1) KKT system per vertex (k neighbours and the multiplier), batched in numpy.
 
 In the linear regime a KD deviation is a sum of responses to each shape's and each joint's motion, so weights that
-reproduce the responses to a take that moves every shape reproduce those of any take. Measured (every demo frame,
-docs/dense-rigs.md): proxy against dense KD, max 0.92 → 0.38 ε at 19k (6k proxy), 1.09 → 0.47 ε at 75k (4k proxy).
-The take shares nothing with the demo or the captures tested: its own seed, its own timing.
+reproduce the responses to a take that moves every shape reproduce those of any take. The take shares nothing
+with the demo or the captures tested: its own seed, its own timing. Measured in docs/dense-rigs.md.
 """
 
 from __future__ import annotations
@@ -33,8 +33,9 @@ import scipy.sparse as sp
 from ..errors import KDInputError
 from .model import FaceModel
 
-__all__ = ["excitation_animation", "fit_embedding", "fitted_embedding", "model_embedding", "EXCITATION_DURATION_S", "EXCITATION_FPS",
-           "EXCITATION_SEED", "EXCITATION_STRIDE", "EXCITATION_HEAD_RAD", "FIT_NEIGHBOURS", "FIT_DAMPING"]
+__all__ = ["excitation_animation", "fit_embedding", "fitted_embedding", "model_embedding", "EXCITATION_DURATION_S",
+           "EXCITATION_FPS", "EXCITATION_SEED", "EXCITATION_STRIDE", "EXCITATION_HEAD_RAD", "FIT_NEIGHBOURS",
+           "FIT_DAMPING"]
 
 #: Length [s] and frame rate [1/s] of the excitation take: 52 ARKit shapes, three bumps each, overlapping.
 EXCITATION_DURATION_S = 8.0
@@ -46,11 +47,14 @@ EXCITATION_SEED = 0
 EXCITATION_STRIDE = 3
 #: The head's largest yaw [rad] in the take (pitch 0.6×, roll 0.2× of it): the demo turns 0.6 rad and nods 0.35.
 EXCITATION_HEAD_RAD = 0.5
-#: Candidate proxy vertices per carried vertex. On the demo, max error at 19k / 75k: 8 → 0.41 / 0.50 ε,
-#: 12 → 0.38 / 0.47 ε, 16 → 0.38 / 0.48 ε; W's nonzeros (the carry's cost) grow with it.
-FIT_NEIGHBOURS = 12
-#: λ, the pull towards the shape-space weights relative to the take's rms deviation (dimensionless). At 75k:
-#: 1e-3 → 0.56 ε, 1e-4 → 0.47 ε, 1e-5 → 0.50 ε (the weights' |w|₁ grows from 4.5 to 13: noise amplified).
+#: Candidate proxy vertices per row. On the 75k face's 4k proxy, largest error over the 60 s capture (every 3rd
+#: frame) / the demo: 12 → 0.61 / 0.43 ε, 16 → 0.47 / 0.45 ε, 20 → 0.41 / 0.33 ε, 24 → 0.38 / 0.31 ε; on every
+#: capture frame 16 left one frame at 0.51 ε. W's nonzeros grow with it, and so does the carry's cost (a 75k
+#: state's carry on one thread, random columns: 1.9 ms with 3 per row, 5.6 ms with 16, 6.7 ms with 20).
+FIT_NEIGHBOURS = 20
+#: λ, the pull towards the shape-space weights relative to the take's mean square deviation (dimensionless). At
+#: 75k with 12 candidates, on the capture: 1e-3 → 0.74 ε, 1e-4 → 0.61 ε; with 16 on capture / demo: 1e-4 → 0.47 /
+#: 0.45 ε, 1e-5 → 0.48 / 0.46 ε (the weights' |w|₁ grows from 9 to 13: the proxy's noise amplified).
 FIT_DAMPING = 1e-4
 
 
@@ -134,8 +138,8 @@ def fit_embedding(prior, region, proxy_deviation, dense_deviation, features, *, 
                   damping: float = FIT_DAMPING) -> sp.csr_matrix:
     """W (N, P) CSR fitted to simulated deviations (module docstring).
 
-    ``prior``: the shape-space W₀ (N, P) (its nonzero rows outside ``region`` are the rows fitted; the prior's
-    weights the fit is pulled towards); ``region`` (P,): the proxy's dense vertex indices (identity rows);
+    ``prior``: the shape-space W₀ (N, P) (its nonzero rows are the rows fitted, the proxy's own identity rows
+    among them; the prior's weights the fit is pulled towards); ``region`` (P,): the proxy's dense vertex indices;
     ``proxy_deviation`` (T, P, 3) [m] and ``dense_deviation`` (T, N, 3) [m]: x − x_K of the proxy and of the dense
     model at the same T states; ``features`` (N, E): shape space for the neighbour search
     (:func:`~kdfaces.rig.proxy.shape_features`); ``neighbours``: candidates per row (k); ``damping``: λ."""
@@ -152,10 +156,8 @@ def fit_embedding(prior, region, proxy_deviation, dense_deviation, features, *, 
     if not (np.isfinite(x).all() and np.isfinite(y).all()):
         raise KDInputError("proxy fit: the excitation take's deviations are not finite (the simulation blew up)")
     k = min(int(neighbours), p)
-    inside = np.zeros(n, dtype=bool)
-    inside[region] = True
-    rows = np.flatnonzero((np.diff(prior.indptr) > 0) & ~inside)
-    out_r, out_c, out_v = [region], [np.arange(p)], [np.ones(p)]
+    rows = np.flatnonzero(np.diff(prior.indptr) > 0)  # the proxy's own rows too (prior: the identity)
+    out_r, out_c, out_v = [], [], []
     if len(rows):
         f = np.asarray(features, dtype=np.float64)
         _, near = cKDTree(f[region]).query(f[rows], k=k)
@@ -175,6 +177,8 @@ def fit_embedding(prior, region, proxy_deviation, dense_deviation, features, *, 
         out_r.append(np.repeat(rows, k))
         out_c.append(cand.ravel())
         out_v.append(w.ravel())
+    if not out_r:
+        return sp.csr_matrix((n, p))
     W = sp.csr_matrix((np.concatenate(out_v), (np.concatenate(out_r), np.concatenate(out_c))), shape=(n, p))
     W.sum_duplicates()
     return W

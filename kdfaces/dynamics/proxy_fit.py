@@ -58,19 +58,13 @@ FIT_NEIGHBOURS = 20
 FIT_DAMPING = 1e-4
 
 
-def _ease(times, values):
-    from ..motion.curves import KeyframeCurve
-
-    values = np.asarray(values, dtype=np.float64)
-    return KeyframeCurve.create(times, values, interpolation="hermite", tangents=np.zeros_like(values))
-
-
 def excitation_animation(rig, *, duration_s: float = EXCITATION_DURATION_S, fps: float = EXCITATION_FPS,
                          seed: int = EXCITATION_SEED, bumps: int = 3):
     """The excitation take for ``rig`` (a :class:`~kdfaces.motion.trajectory.FaceAnimation`): each of its shapes
     eased up and down ``bumps`` times (rise and fall 0.12–0.35 s, hold 0.1–0.6 s, weight 0.3–0.8, at seeded times
     over ``duration_s`` [s]); the head chain, where the rig's skeleton has it, turned, nodded and rolled between
     seeded holds (:data:`EXCITATION_HEAD_RAD`). Sharp eased stops, as in the demo, excite the face's ringing."""
+    from ..motion.curves import KeyframeCurve
     from ..motion.joints import JointDrive, SkeletonAnimation
     from ..motion.trajectory import FaceAnimation, ShapeTrack
     from ..rig.skeleton import HEAD_CHAIN_SPLIT
@@ -88,7 +82,7 @@ def excitation_animation(rig, *, duration_s: float = EXCITATION_DURATION_S, fps:
             vs += [0.0, a, a, 0.0]
         ts.append(duration_s)
         vs.append(0.0)
-        tracks.append(ShapeTrack((name,), _ease(ts, np.array(vs)[:, None])))
+        tracks.append(ShapeTrack((name,), KeyframeCurve.eased(ts, np.array(vs)[:, None])))
     drives = ()
     skel = rig.skeleton
     shares = {j: f for j, f in HEAD_CHAIN_SPLIT.items() if skel is not None and j in skel.names}
@@ -105,7 +99,7 @@ def excitation_animation(rig, *, duration_s: float = EXCITATION_DURATION_S, fps:
         ht.append(duration_s)
         hv.append(np.zeros(3))
         hv = np.array(hv)
-        drives = (JointDrive(_ease(np.array(ht), hv), shares),)
+        drives = (JointDrive(KeyframeCurve.eased(ht, hv), shares),)
     return FaceAnimation(tracks=tuple(tracks), skeleton=SkeletonAnimation(drives), start_s=0.0, end_s=duration_s,
                          fps=fps, name="excitation")
 

@@ -31,6 +31,13 @@ class KeyframeCurve:
     interpolation: str
 
     @classmethod
+    def eased(cls, times, values, *, where: str = "curve") -> KeyframeCurve:
+        """Hermite keys with zero tangents (``times`` (M,) [s], ``values`` (M,) or (M, C)): every key a smooth stop,
+        so short transitions give sharp accelerations (the demo's and the proxy fit's excitation take's motion)."""
+        v = np.asarray(values, dtype=np.float64)
+        return cls.create(times, v, interpolation="hermite", tangents=np.zeros_like(v), where=where)
+
+    @classmethod
     def create(cls, times, values, *, interpolation: str = "catmull-rom", tangents=None,
                where: str = "curve") -> KeyframeCurve:
         """A curve from keys: ``times`` (M,) [s] strictly increasing, ``values`` (M,) or (M, C).

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ..motion.curves import KeyframeCurve
 from ..motion.joints import JointDrive, SkeletonAnimation
 from ..motion.trajectory import FaceAnimation, ShapeTrack
@@ -23,10 +21,8 @@ DEMO_DURATION_S = 6.0
 DEMO_SHOT = Path(__file__).resolve().parent / "demo.toml"
 
 
-def _ease(times, values):
-    """Hermite keys with zero tangents: smooth starts and stops, short transitions give sharp accelerations."""
-    values = np.asarray(values, dtype=np.float64)
-    return KeyframeCurve.create(times, values, interpolation="hermite", tangents=np.zeros_like(values))
+#: Hermite keys with zero tangents: smooth starts and stops, short transitions give sharp accelerations.
+_ease = KeyframeCurve.eased
 
 
 def demo_animation() -> FaceAnimation:

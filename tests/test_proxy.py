@@ -225,16 +225,20 @@ def test_the_proxy_system_observes_the_dense_mesh(demo):
     still = np.diff(model.embedding.indptr) == 0
     np.testing.assert_allclose(x[:, still], xk[:, still], rtol=0, atol=1e-12)
     # every other vertex is x_K + W (x_proxy − x_K,proxy), the proxy's own (W fits their rows too) and the carried
-    # ones, with x_proxy the state (float32)
+    # ones, with x_proxy the state (float32). The carry's weights and deviations are float32 and summed in float32
+    # (kdfaces.dynamics.carry): each of a row's K products and K sums rounds by at most 2^-24 relative, so a row
+    # is within (2K + 2)·2^-24·Σ_j |w_j||d_j| of the float64 product (rounding w and d: 2 more)
     from kdfaces.kd import step_states, time_steps
 
     h = 1.0 / traj.fps
     n = int(time_steps(system, traj, t, WINDOW_S, h)[0])
     state = step_states(system, traj, t - n * h, n, h)  # the proxy's state: its positions in the region's order
     d = system._positions(state).astype(np.float64) - xk[:, model.region]
+    width = int(np.diff(model.embedding.indptr).max())
     for b in range(len(t)):
-        np.testing.assert_allclose(x[b, ~still], xk[b, ~still] + (model.embedding @ d[b])[~still], rtol=0,
-                                   atol=1e-12)
+        bound = 1e-12 + (2 * width + 2) * 2.0 ** -24 * (abs(model.embedding) @ np.abs(d[b]))[~still]
+        err = np.abs(x[b, ~still] - (xk[b, ~still] + (model.embedding @ d[b])[~still]))
+        assert (err <= bound).all(), float((err / bound).max())
     # the deviation rows simulated_kinematic names are exactly the vertices that differ from x_K
     rows, xs = system.simulated_kinematic(traj, t)
     differ = np.flatnonzero(np.abs(x - xk).max(axis=(0, 2)) > 1e-12)  # beyond the pose's round-off (above)
@@ -247,6 +251,40 @@ def test_the_proxy_system_observes_the_dense_mesh(demo):
     for b in range(len(t)):
         np.testing.assert_array_equal(simulate_kd(system, traj, t[b:b + 1], WINDOW_S)[0], x[b])
     system.close()
+
+
+@pytest.mark.parametrize("narrow", [True, False])
+def test_the_carry_kernel_is_the_sparse_product(narrow):
+    """The fixed-width carry (uint16 or int32 columns) adds W d to the carried rows: rows of any length (zero
+    padding), a batch of times, the rows it does not carry untouched; float32 sums within the bound above."""
+    import warp as wp
+
+    from kdfaces.dynamics.carry import CARRY_BLOCK_ROWS, carry_kernel, padded_rows
+
+    rng = np.random.default_rng(3)
+    E, P, N, T = 3 * CARRY_BLOCK_ROWS + 17, 300, 1200, 3
+    W = sp.random(E, P, density=0.02, random_state=4, format="csr", data_rvs=lambda k: rng.normal(size=k))
+    cols, vals = padded_rows(W)
+    assert cols.shape == vals.shape == (E, max(1, int(np.diff(W.indptr).max())))
+    np.testing.assert_array_equal(sp.csr_matrix((vals.ravel(), cols.ravel(), np.arange(0, cols.size + 1,
+                                                                                        cols.shape[1])),
+                                                shape=W.shape).toarray(), W.toarray())
+    carried = rng.choice(N, E, replace=False).astype(np.int32)
+    dev = rng.normal(size=(T, P, 3)) * 1e-2
+    xk = rng.normal(size=(T, N, 3))
+    out = xk.copy()
+    kernel = carry_kernel(cols.shape[1], narrow)
+    wp.launch(kernel, dim=-(-E // CARRY_BLOCK_ROWS), inputs=[
+        0, wp.array(carried, dtype=wp.int32), wp.array(cols.astype(np.uint16 if narrow else np.int32),
+                                                       dtype=wp.uint16 if narrow else wp.int32),
+        wp.array(vals.astype(np.float32), dtype=wp.float32), wp.array(dev.astype(np.float32), dtype=wp.vec3),
+        wp.array(out, dtype=wp.vec3d, copy=False)], device="cpu")
+    rest = np.setdiff1d(np.arange(N), carried)
+    np.testing.assert_array_equal(out[:, rest], xk[:, rest])
+    for t in range(T):
+        want = xk[t, carried] + W @ dev[t]
+        bound = 1e-15 + (2 * cols.shape[1] + 2) * 2.0 ** -24 * (abs(W) @ np.abs(dev[t]))
+        assert (np.abs(out[t, carried] - want) <= bound).all()
 
 
 def _accuracy(traj, dense, models, times):

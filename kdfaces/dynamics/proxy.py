@@ -53,32 +53,11 @@ from ..rig.proxy import (
     proxy_rig,
     shape_features,
 )
+from .carry import CARRY_BLOCK_ROWS, carry_kernel, padded_rows
 from .system import FaceSystem
 
 __all__ = ["FaceProxy", "build_proxy", "embedding_matrix", "shape_features", "proxy_rig", "ProxyFaceSystem",
            "AUTO_PROXY_VERTICES", "DECIMATE_SHAPE_WEIGHT"]
-
-
-@wp.kernel
-def carry_deviation(
-    lo: int,
-    carried: wp.array(dtype=wp.int64),
-    w_start: wp.array(dtype=wp.int32),
-    w_col: wp.array(dtype=wp.int32),
-    w_val: wp.array(dtype=wp.float64),
-    dev: wp.array2d(dtype=wp.vec3d),
-    xk: wp.array2d(dtype=wp.vec3d),
-):
-    """x_K + W (x_proxy − x_K,proxy) at carried vertex ``carried[lo + k]``, every time, in place of its x_K in
-    ``xk`` (T, N): its row of W (``w_start``, ``w_col``, ``w_val``: CSR over the P proxy vertices) times the
-    proxy's deviation ``dev`` (T, P) [m]."""
-    e = lo + wp.tid()
-    i = carried[e]
-    for t in range(xk.shape[0]):
-        acc = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-        for s in range(w_start[e], w_start[e + 1]):
-            acc = acc + w_val[s] * dev[t, w_col[s]]
-        xk[t, i] = xk[t, i] + acc
 
 
 class ProxyFaceSystem(FaceSystem):
@@ -109,14 +88,16 @@ class ProxyFaceSystem(FaceSystem):
         fixed[region[self._identity]] = True
         carried = np.flatnonzero((np.diff(W.indptr) > 0) & ~fixed)
         self._carried = carried.astype(np.int64)
-        carry = sp.csr_matrix(W[carried])  # (E, P)
-        carry.sort_indices()
+        cols, vals = padded_rows(W[carried])  # (E, width): the carried rows of W at a fixed width
         self._deviating = np.union1d(model.region, carried).astype(np.int64)
         d = self.device
-        self._carry = (wp.array(self._carried, dtype=wp.int64, device=d),
-                       wp.array(carry.indptr.astype(np.int32), dtype=wp.int32, device=d),
-                       wp.array(carry.indices.astype(np.int32), dtype=wp.int32, device=d),
-                       wp.array(carry.data.astype(np.float64), dtype=wp.float64, device=d))
+        narrow = len(region) <= np.iinfo(np.uint16).max + 1
+        self._carry_kernel = carry_kernel(cols.shape[1], narrow)
+        wp.load_module(self._carry_kernel.module, device=d)  # here, not on the first launch from two threads
+        self._carry = (wp.array(self._carried.astype(np.int32), dtype=wp.int32, device=d),
+                       wp.array(cols.astype(np.uint16 if narrow else np.int32), dtype=wp.uint16 if narrow else wp.int32,
+                                device=d),
+                       wp.array(vals.astype(np.float32), dtype=wp.float32, device=d))
         self._sampler = None  # the PoseSampler of the last rig observed
         self._dense_views = (None, [])  # (trajectory, [(vertex part, its restricted view)]): the generic x_K
 
@@ -182,15 +163,17 @@ class ProxyFaceSystem(FaceSystem):
     def _embed(self, deviation: np.ndarray, xk: np.ndarray) -> None:
         """Carried rows of ``xk`` (b, N, 3) float64 (x_K) += W ``deviation`` (b, P, 3) [m] (x_proxy − x_K,proxy)."""
         d = self.device
-        dev_w = wp.array(deviation, dtype=wp.vec3d, device=d)
+        dev_w = wp.array(deviation.astype(np.float32), dtype=wp.vec3, device=d)
         xk_w = wp.array(xk, dtype=wp.vec3d, device=d, copy=False) if d.is_cpu else wp.array(xk, dtype=wp.vec3d,
                                                                                              device=d)
-        bounds = np.linspace(0, len(self._carried), self.threads + 1).astype(np.int64)
+        blocks = -(-len(self._carried) // CARRY_BLOCK_ROWS)
+        bounds = np.linspace(0, blocks, self.threads + 1).astype(np.int64)
 
-        def part(lo: int, hi: int):
+        def part(lo: int, hi: int):  # blocks lo..hi-1 of CARRY_BLOCK_ROWS rows
             def run():
                 if hi > lo:
-                    wp.launch(carry_deviation, dim=hi - lo, inputs=[lo, *self._carry, dev_w, xk_w], device=d)
+                    wp.launch(self._carry_kernel, dim=hi - lo, inputs=[lo * CARRY_BLOCK_ROWS, *self._carry, dev_w,
+                                                                       xk_w], device=d)
             return run
 
         self._parts([part(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])])

@@ -284,7 +284,9 @@ class FaceModel:
         :data:`~kdfaces.rig.proxy.AUTO_PROXY_VERTICES` vertices and carries the dense mesh with it when the
         region has more than :data:`kdfaces.defaults.PROXY_ABOVE_VERTICES` non-rigid vertices (else, and with
         None, the dense mesh itself, as before); an integer: a proxy of about that many vertices; or a
-        :class:`~kdfaces.rig.proxy.FaceProxy` built beforehand.
+        :class:`~kdfaces.rig.proxy.FaceProxy` built beforehand. A proxy's cluster rotations take
+        :data:`kdfaces.defaults.PROXY_ROTATION_ITERATIONS` Newton iterations per step unless
+        ``rotation_iterations`` is given.
 
         ``proxy_embedding`` (with a proxy): "fitted" (default, :data:`kdfaces.defaults.PROXY_EMBEDDING`) fits W to
         the dense and the proxy's KD states on an excitation take (:mod:`kdfaces.dynamics.proxy_fit`: two short
@@ -410,6 +412,7 @@ def _proxy_model(cls, rig, region, proxy, kwargs: dict) -> FaceModel:
         settle = kwargs.get("settle_time_s", kwargs.get("settle_time"))
         px = build_proxy(rig.neutral, rig.faces, simulated, proxy, rig.deltas, settle_time_features(settle, n))
     kwargs = dict(kwargs)
+    kwargs.setdefault("rotation_iterations", defaults.PROXY_ROTATION_ITERATIONS)
     mass = kwargs.pop("mass", None)
     density = kwargs.pop("areal_density_kg_m2", kwargs.pop("areal_density", defaults.AREAL_DENSITY_KG_M2))
     if mass is None:  # the dense mesh's lumped masses (as create), the proxy's vertices standing for W^T m

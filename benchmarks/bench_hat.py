@@ -91,7 +91,7 @@ KD_SIZES = (("1k tets", DEFAULT_EDGE_LENGTH_FAC, DEFAULT_EPSILON, True), ("5k te
 #: KD states are timed at these demo times [s] (the nod: the tip swings), each a new window
 SCRUB_TIMES = tuple(np.round(np.arange(4.8, 5.41, 0.04), 2))
 #: the sizes whose reduced KD states are also compared with the full FEM's KD states (every frame, same δ and h)
-KD_VS_FULL_KD = ("1k tets", "5k tets")
+KD_VS_FULL_KD = ("1k tets", "5k tets", "20k tets")
 
 
 def _systems(rig, fac, eps, coarsen):
@@ -124,8 +124,8 @@ def bench_hat_kd_state(repeats: int = 3) -> list[dict]:
     own full simulation against the full FEM's) and the window alone (the reduced KD state against the reduced full
     simulation: the KD window's own truncation, which the full FEM's KD state has too). At 1k and 5k the reduced KD
     state is also compared with the full FEM's KD state at the same δ and h (like for like: the rows
-    ``hat_kd_state`` "full" and "reduced"), on every frame; at 20k the full FEM's 151 KD states take ~5 minutes on
-    this machine's CPU (~2 s each, batched), so that figure is measured by hand (in BENCHMARKS.md)."""
+    ``hat_kd_state`` "full" and "reduced"), on every frame, at 20k too (the full FEM's 151 KD states take about
+    5 minutes on this machine's CPU, ~2 s each, batched)."""
     from kdfaces.kd import simulate_full
 
     rig = load_default_rig()
@@ -162,7 +162,7 @@ def bench_hat_kd_state(repeats: int = 3) -> list[dict]:
             err = np.linalg.norm(x[:, tip] - y[:, tip], axis=1).max()
             out.append({"name": "hat_reduced_error", "size": f"{label} ({n}), tip error / peak tip swing: {part}",
                         "median_s": float("nan"), "rate": 100 * err / swing, "unit": "%"})
-        if label in KD_VS_FULL_KD:  # the full FEM's KD states on every frame, one batch (5k: ~1.5 min)
+        if label in KD_VS_FULL_KD:  # the full FEM's KD states on every frame, one batch (5k: ~1.5 min, 20k: ~5)
             xkd = simulate_kd(full, traj, times, WINDOW_S, step_s=H)
             err = np.linalg.norm(xr[:, tip] - xkd[:, tip], axis=1).max()
             out.append({"name": "hat_reduced_error", "size": f"{label} ({n}), reduced KD vs full KD (same δ), tip "
